@@ -1,0 +1,181 @@
+"""Quality report of a run: PNG plots and ``summary.json``.
+
+Plots: the per-frame flash counts of both cameras aligned by the estimated delay, the
+delay votes and cross-correlation, the calibration residuals, and the trajectories in
+3D (and from above), coloured by trajectory.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import matplotlib
+
+matplotlib.use("Agg")  # files only: never needs a display
+import matplotlib.pyplot as plt
+import numpy as np
+
+from pipeline import artifacts
+from pipeline.detections import Detections
+from pipeline.results import StereoProbe, read_json, read_trajectories, write_json
+
+if TYPE_CHECKING:
+    from pipeline.run import ProcessParams
+
+
+def write_report(workdir: Path, params: ProcessParams) -> list[str]:
+    """Write the plots and ``report/summary.json``; return their names relative to workdir."""
+    report_dir = workdir / artifacts.REPORT_DIR
+    report_dir.mkdir(parents=True, exist_ok=True)
+    probe = StereoProbe.load(workdir)
+    sync = read_json(workdir / artifacts.SYNC_JSON)
+    det1 = Detections.from_csv(workdir / artifacts.flashes_name(1))
+    det2 = Detections.from_csv(workdir / artifacts.flashes_name(2))
+    trajectories = read_trajectories(workdir / artifacts.TRAJECTORIES_CSV)
+    pairs = np.load(workdir / artifacts.CALIBRATION_PAIRS_NPZ)
+
+    plots = {
+        "counts.png": lambda p: plot_counts(det1, det2, probe.n_frames, probe.fps, sync, p),
+        "delay.png": lambda p: plot_delay(sync, probe.fps, p),
+        "calibration_residuals.png": lambda p: plot_residuals(
+            pairs["residuals"], pairs["inliers"], p
+        ),
+        "trajectories_3d.png": lambda p: plot_trajectories(trajectories, p),
+    }
+    names = []
+    for filename, draw in plots.items():
+        draw(report_dir / filename)
+        names.append(f"{artifacts.REPORT_DIR}/{filename}")
+    write_json(workdir / artifacts.SUMMARY_JSON, summarise(workdir, params, trajectories))
+    return [*names, artifacts.SUMMARY_JSON]
+
+
+def summarise(
+    workdir: Path, params: ProcessParams, trajectories: dict[str, np.ndarray]
+) -> dict[str, Any]:
+    """Counts, calibration quality, warnings and per-stage timings of a run."""
+    metrics = {
+        path.stem: read_json(path)
+        for path in sorted((workdir / artifacts.METRICS_DIR).glob("*.json"))
+    }
+    calibration = read_json(workdir / artifacts.CALIBRATION_JSON)
+    counts: dict[str, Any] = {}
+    for camera in artifacts.CAMERAS:
+        merge = metrics.get(f"merge_cam{camera}", {}).get("metrics", {})
+        counts[f"candidates_cam{camera}"] = merge.get("n_candidates")
+        counts[f"flashes_cam{camera}"] = len(
+            Detections.from_csv(workdir / artifacts.flashes_name(camera))
+        )
+    counts.update(
+        calibration_pairs=calibration.get("n_calibration_pairs"),
+        calibration_inliers=calibration.get("n_calibration_inliers"),
+        points=len(trajectories["frame"]),
+        streaks=len(np.unique(trajectories["streak_id"])),
+        trajectories=len(np.unique(trajectories["trajectory_id"])),
+    )
+    timings = {name: m["metrics"].get("seconds") for name, m in metrics.items()}
+    for camera in artifacts.CAMERAS:
+        merge = metrics.get(f"merge_cam{camera}", {}).get("metrics", {})
+        if "tracking_seconds" in merge:
+            timings[f"track_cam{camera}"] = merge["tracking_seconds"]
+    return {
+        "counts": counts,
+        "delay_frames": calibration["delay_frames"],
+        "delay_confidence": calibration["delay_confidence"],
+        "rotation": calibration["rotation"],
+        "translation": calibration["translation"],
+        "residuals": calibration.get("residuals", {}),
+        "warnings": [w for m in metrics.values() for w in m.get("warnings", [])],
+        "timings_s": timings,
+        "parameters": params.model_dump(),
+    }
+
+
+def plot_counts(
+    det1: Detections,
+    det2: Detections,
+    n_frames: dict[int, int],
+    fps: float,
+    sync: dict[str, Any],
+    path: Path,
+) -> None:
+    """N(t) of both cameras on camera 1's clock (camera 2 shifted by the delay)."""
+    delay = int(sync["delay_frames"])
+    window = max(round(fps), 1)  # 1-s running sum: single frames are too spiky
+    kernel = np.ones(window)
+    n1 = np.convolve(det1.counts_per_frame(n_frames[1]), kernel, mode="same")
+    n2 = np.convolve(det2.counts_per_frame(n_frames[2]), kernel, mode="same")
+    fig, ax = plt.subplots(figsize=(10, 3.5))
+    ax.plot(np.arange(len(n1)) / fps, n1, lw=0.8, label="camera 1")
+    ax.plot((np.arange(len(n2)) - delay) / fps, n2, lw=0.8, alpha=0.8, label="camera 2")
+    ax.set(
+        xlabel="time on camera 1's clock (s)",
+        ylabel="flashes per second",
+        title=f"Flash counts aligned by delay {delay} frames "
+        f"(confidence {float(sync['confidence']):.2f})",
+    )
+    ax.legend(loc="upper right")
+    _save(fig, path)
+
+
+def plot_delay(sync: dict[str, Any], fps: float, path: Path) -> None:
+    """Histogram of the RANSAC windows' delays and the global cross-correlation."""
+    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 3.5))
+    votes = np.asarray(sync.get("votes", []), dtype=float)
+    if len(votes):
+        # At least ±10 frames around the choice, so unanimous votes still read as a peak.
+        lo = min(votes.min(), sync["delay_frames"] - 10)
+        hi = max(votes.max(), sync["delay_frames"] + 10)
+        left.hist(votes, bins=np.arange(lo - 0.5, hi + 1.5), color="tab:blue")
+    left.axvline(sync["delay_frames"], color="tab:red", lw=1, label="chosen delay")
+    left.set(xlabel="delay (frames)", ylabel="windows", title="Delay votes")
+    left.legend()
+    lags = np.asarray(sync.get("lags", []), dtype=float)
+    correlation = np.asarray(sync.get("correlation", []), dtype=float)
+    right.plot(lags / fps, correlation, lw=0.8)
+    right.axvline(sync["delay_frames"] / fps, color="tab:red", lw=1)
+    right.set(xlabel="delay (s)", ylabel="normalised correlation", title="N1 ⋆ N2")
+    _save(fig, path)
+
+
+def plot_residuals(residuals: np.ndarray, inliers: np.ndarray, path: Path) -> None:
+    """Distribution of the calibration pairs' residuals, inliers and outliers."""
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    finite = residuals[np.isfinite(residuals)]
+    if len(finite):
+        bins = np.linspace(0, np.quantile(finite, 0.99) * 1.05 + 1e-12, 50).tolist()
+        ax.hist(residuals[inliers], bins=bins, label=f"inliers ({int(inliers.sum())})")
+        ax.hist(
+            residuals[~inliers], bins=bins, alpha=0.7, label=f"outliers ({int((~inliers).sum())})"
+        )
+        ax.legend()
+    ax.set(
+        xlabel="residual (degrees)",
+        ylabel="calibration pairs",
+        title="Spatial calibration residuals",
+    )
+    _save(fig, path)
+
+
+def plot_trajectories(trajectories: dict[str, np.ndarray], path: Path) -> None:
+    """Trajectories in 3D and from above, one colour per trajectory."""
+    fig = plt.figure(figsize=(11, 5))
+    ax3d = fig.add_subplot(1, 2, 1, projection="3d")
+    top = fig.add_subplot(1, 2, 2)
+    x, y, z = trajectories["x"], trajectories["y"], trajectories["z"]
+    colour = trajectories["trajectory_id"] % 20
+    ax3d.scatter(x, y, z, c=colour, cmap="tab20", s=2, vmin=0, vmax=19)
+    ax3d.scatter([0], [0], [0], c="k", marker="^", s=30)
+    ax3d.set(xlabel="x (m)", ylabel="y (m)", zlabel="z (m)", title="Trajectories")
+    top.scatter(x, y, c=colour, cmap="tab20", s=2, vmin=0, vmax=19)
+    top.plot([0], [0], "k^")
+    top.set(xlabel="x (m)", ylabel="y (m)", title="From above (camera 1 at ▲)")
+    top.set_aspect("equal", adjustable="datalim")
+    _save(fig, path)
+
+
+def _save(fig: plt.Figure, path: Path) -> None:
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

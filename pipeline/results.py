@@ -1,0 +1,193 @@
+"""Result files of a run: the CONTRACT formats of DESIGN.md and compact internal ones.
+
+* ``calibration.json``: ``delay_frames``, ``delay_confidence``, ``rotation`` (3×3
+  row-major nested lists), ``translation`` (unit 3-vector), ``separation_m``, ``fps``,
+  ``width``, ``height``, ``n_calibration_pairs`` and residual statistics.
+* ``work/probe.json``: frame size, fps and each camera's length (and video probe).
+* ``trajectories.csv``: ``x,y,z,frame,time_s,streak_id,trajectory_id`` then extra
+  columns; one row per triangulated flash, metres in camera 1's frame, camera-1 frames.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Self
+
+import numpy as np
+
+from pipeline.artifacts import PROBE_JSON
+from pipeline.detections import read_csv, write_csv
+from pipeline.geometry import Pose
+from pipeline.trajectories import Linking
+from pipeline.triangulate import Points3D
+from pipeline.video import VideoInfo
+
+#: Leading columns of ``trajectories.csv`` (CONTRACT), then the extra ones we add.
+TRAJECTORY_COLUMNS = ("x", "y", "z", "frame", "time_s", "streak_id", "trajectory_id")
+TRAJECTORY_EXTRA_COLUMNS = ("gap_m", "range_m")
+
+
+@dataclass(frozen=True)
+class StereoProbe:
+    """Frame geometry and timing shared by both cameras, and each camera's length.
+
+    ``videos`` is empty when the run starts from detections (``reconstruct``).
+    """
+
+    width: int
+    height: int
+    fps: float
+    n_frames: dict[int, int]
+    videos: dict[int, VideoInfo] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "width": self.width,
+            "height": self.height,
+            "fps": self.fps,
+            "n_frames": {str(c): n for c, n in self.n_frames.items()},
+            "videos": {str(c): v.to_dict() for c, v in self.videos.items()},
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> Self:
+        return cls(
+            width=int(data["width"]),
+            height=int(data["height"]),
+            fps=float(data["fps"]),
+            n_frames={int(c): int(n) for c, n in data["n_frames"].items()},
+            videos={int(c): VideoInfo.from_dict(v) for c, v in data.get("videos", {}).items()},
+        )
+
+    @classmethod
+    def load(cls, workdir: Path) -> Self:
+        return cls.from_dict(read_json(workdir / PROBE_JSON))
+
+    def save(self, workdir: Path) -> None:
+        write_json(workdir / PROBE_JSON, self.to_dict())
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """The temporal and spatial calibration of a stereo recording."""
+
+    delay_frames: int
+    delay_confidence: float
+    pose: Pose
+    separation_m: float
+    fps: float
+    width: int
+    height: int
+
+
+def write_json(path: Path, data: dict[str, Any]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(data, indent=2, default=_json_default) + "\n", encoding="utf-8")
+
+
+def read_json(path: Path) -> dict[str, Any]:
+    return json.loads(path.read_text(encoding="utf-8"))
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, Path):
+        return str(value)
+    raise TypeError(f"cannot serialise {type(value).__name__} to JSON")
+
+
+def write_calibration(path: Path, calibration: Calibration, extra: dict[str, Any]) -> None:
+    """Write ``calibration.json``: the CONTRACT fields first, then ``extra``."""
+    write_json(
+        path,
+        {
+            "delay_frames": int(calibration.delay_frames),
+            "delay_confidence": float(calibration.delay_confidence),
+            "rotation": calibration.pose.rotation.tolist(),
+            "translation": calibration.pose.translation.tolist(),
+            "separation_m": float(calibration.separation_m),
+            "fps": float(calibration.fps),
+            "width": int(calibration.width),
+            "height": int(calibration.height),
+            **extra,
+        },
+    )
+
+
+def read_calibration(path: Path) -> Calibration:
+    data = read_json(path)
+    return Calibration(
+        delay_frames=int(data["delay_frames"]),
+        delay_confidence=float(data["delay_confidence"]),
+        pose=Pose(np.asarray(data["rotation"]), np.asarray(data["translation"])),
+        separation_m=float(data["separation_m"]),
+        fps=float(data["fps"]),
+        width=int(data["width"]),
+        height=int(data["height"]),
+    )
+
+
+def save_points(path: Path, points: Points3D) -> None:
+    """Lossless ``.npz`` of triangulated points, passed from triangulation to linking."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(
+        path,
+        xyz=points.xyz,
+        frame=points.frame,
+        gap_m=points.gap_m,
+        range_m=points.range_m,
+        index1=points.index1,
+        index2=points.index2,
+    )
+
+
+def load_points(path: Path) -> Points3D:
+    with np.load(path) as data:
+        return Points3D(
+            xyz=data["xyz"],
+            frame=data["frame"],
+            gap_m=data["gap_m"],
+            range_m=data["range_m"],
+            index1=data["index1"],
+            index2=data["index2"],
+        )
+
+
+def write_trajectories(path: Path, points: Points3D, linking: Linking, fps: float) -> None:
+    """Write ``trajectories.csv`` (CONTRACT header, then ``gap_m,range_m``)."""
+    write_csv(
+        path,
+        {
+            "x": points.xyz[:, 0],
+            "y": points.xyz[:, 1],
+            "z": points.xyz[:, 2],
+            "frame": points.frame,
+            "time_s": points.frame / fps,
+            "streak_id": linking.streak_id,
+            "trajectory_id": linking.trajectory_id,
+            "gap_m": points.gap_m,
+            "range_m": points.range_m,
+        },
+        formats={
+            "x": "%.4f",
+            "y": "%.4f",
+            "z": "%.4f",
+            "time_s": "%.4f",
+            "gap_m": "%.4f",
+            "range_m": "%.4f",
+        },
+    )
+
+
+def read_trajectories(path: Path) -> dict[str, np.ndarray]:
+    """Columns of a ``trajectories.csv``; integer columns come back as int64."""
+    table = read_csv(path, required=TRAJECTORY_COLUMNS)
+    for name in ("frame", "streak_id", "trajectory_id"):
+        table[name] = table[name].astype(np.int64)
+    return table

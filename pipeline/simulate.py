@@ -1,0 +1,242 @@
+"""Synthetic stereo 360° recordings of fireflies with exact ground truth.
+
+Two equirectangular cameras side by side (GoPro Max / Fusion style) film a night
+scene: fireflies flying and flashing a few metres away plus, depending on the
+scenario, dusk sky, lamps, the moon, car headlights, flashlights and wind-shaken
+foliage. Everything follows the CONTRACT conventions of DESIGN.md and
+`pipeline.geometry`: camera 1 is the world frame (``z`` up, ground at
+``z = −camera_height_m``), camera 2 sits at ``T = s t̂`` rotated by ``R``, and camera-1
+frame ``k`` shows the same instant as camera-2 frame ``k + delay_frames``.
+
+Usage::
+
+    config = SimulationConfig(scenario="field", seed=3)
+    recording = simulate(config, "out/")   # recording.cam1 / .cam2: chapter files in order
+    truth = load_truth("out/")             # the same GroundTruth, read from its files
+    truth = ground_truth(config)           # the truth alone, no video (fast)
+    frame = plan(config).renderer(1).render(0)   # one raw RGB frame, before encoding
+
+Randomness comes from independent streams per purpose (`pipeline.simulation.rig.stream`),
+so the same seed gives the same truth and the same pixels.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.simulation.config import SCENARIOS, SimulationConfig
+from pipeline.simulation.encode import ChapterWriter, chapter_sizes
+from pipeline.simulation.fireflies import Emissions, synthetic_emissions
+from pipeline.simulation.real3d import real_emissions
+from pipeline.simulation.render import spot_peak
+from pipeline.simulation.rig import Rig, draw_rig, stream
+from pipeline.simulation.scene import CameraRenderer, Scene, build_scene
+from pipeline.simulation.tables import ArtifactTruth, FlashTruth
+from pipeline.simulation.truth import GroundTruth
+
+__all__ = [
+    "SCENARIOS",
+    "ArtifactTruth",
+    "FlashTruth",
+    "GroundTruth",
+    "SimulatedRecording",
+    "SimulationConfig",
+    "SimulationPlan",
+    "ground_truth",
+    "load_truth",
+    "plan",
+    "simulate",
+]
+
+
+@dataclass(frozen=True)
+class SimulatedRecording:
+    """Output of `simulate`: chapter files of each camera, in order, and the truth."""
+
+    cam1: list[Path]
+    cam2: list[Path]
+    truth: GroundTruth
+
+
+@dataclass(frozen=True)
+class SimulationPlan:
+    """Everything drawn from a configuration before any pixel is rendered.
+
+    Attributes
+    ----------
+    config : SimulationConfig
+    rig : Rig
+        Pose, delay, recording length, camera gains.
+    scene : Scene
+        Landscape, lights, foliage and sky level over time.
+    flashes : FlashTruth
+        The fireflies' flash-frames with their projections and visibility.
+    """
+
+    config: SimulationConfig
+    rig: Rig
+    scene: Scene
+    flashes: FlashTruth
+
+    def chapter_paths(self, out_dir: str | Path, camera: int) -> list[Path]:
+        """``cam<camera>_00.mp4``, ``cam<camera>_01.mp4``, … in ``out_dir``."""
+        count = self.config.chapters[camera - 1]
+        return [Path(out_dir) / f"cam{camera}_{i:02d}.mp4" for i in range(count)]
+
+    def truth(self) -> GroundTruth:
+        """The ground truth (also what `simulate` writes next to the videos)."""
+        rig, config = self.rig, self.config
+        return GroundTruth(
+            delay_frames=rig.delay_frames,
+            pose=rig.pose,
+            separation_m=rig.separation_m,
+            camera_height_m=rig.camera_height_m,
+            fps=config.fps,
+            width=config.width,
+            height=config.height,
+            n_frames1=rig.n_frames,
+            n_frames2=rig.n_frames,
+            scenario=config.scenario,
+            seed=config.seed,
+            flashes=self.flashes,
+            artifacts=self.scene.artifacts(),
+            extra={
+                "gains": list(rig.gains),
+                "cam1": [p.name for p in self.chapter_paths(".", 1)],
+                "cam2": [p.name for p in self.chapter_paths(".", 2)],
+                "config": config.model_dump(mode="json"),
+            },
+        )
+
+    def renderer(self, camera: int) -> CameraRenderer:
+        """Renderer of ``camera``'s raw RGB frames (before encoding)."""
+        return CameraRenderer(
+            self.scene,
+            camera,
+            self.flashes,
+            self.config.resolved_noise_sigma,
+            stream(self.config.seed, f"noise{camera}"),
+        )
+
+
+def plan(config: SimulationConfig) -> SimulationPlan:
+    """Draw the rig, the scene and the fireflies' flashes for ``config``."""
+    rig = draw_rig(config)
+    return SimulationPlan(
+        config=config,
+        rig=rig,
+        scene=build_scene(config, rig),
+        flashes=flash_truth(emissions(config, rig), rig, config),
+    )
+
+
+def ground_truth(config: SimulationConfig) -> GroundTruth:
+    """The ground truth `simulate` would produce, without rendering any video (fast)."""
+    return plan(config).truth()
+
+
+def simulate(
+    config: SimulationConfig,
+    out_dir: str | Path,
+    progress: Callable[[int], None] | None = None,
+) -> SimulatedRecording:
+    """Render a stereo recording and write it with its ground truth.
+
+    Parameters
+    ----------
+    config : SimulationConfig
+    out_dir : str or Path
+        Created if needed. Receives ``cam1_00.mp4``, ``cam1_01.mp4``, …,
+        ``cam2_00.mp4``, …, ``truth.json``, ``truth_flashes.csv`` and
+        ``truth_artifacts.csv``.
+    progress : callable, optional
+        Called with ``1`` after each frame is written (``2 * config.n_frames`` calls
+        in all), e.g. ``tqdm.update``.
+
+    Returns
+    -------
+    SimulatedRecording
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    drawn = plan(config)
+    for camera in (1, 2):
+        _render_camera(drawn, camera, out, progress)
+    truth = drawn.truth()
+    truth.save(out)
+    return SimulatedRecording(
+        cam1=drawn.chapter_paths(out, 1), cam2=drawn.chapter_paths(out, 2), truth=truth
+    )
+
+
+def load_truth(out_dir: str | Path) -> GroundTruth:
+    """Ground truth written by `simulate` into ``out_dir``."""
+    return GroundTruth.load(out_dir)
+
+
+def emissions(config: SimulationConfig, rig: Rig) -> Emissions:
+    """Flash-frames of the scenario's fireflies (synthetic or replayed real data)."""
+    rng = stream(config.seed, "fireflies")
+    if config.scenario == "real3d":
+        assert config.real3d_csv is not None  # guaranteed by validation
+        return real_emissions(config.real3d_csv, config.fps, rig, rng, config.real3d_swarms)
+    return synthetic_emissions(config, rig, rng)
+
+
+def flash_truth(emitted: Emissions, rig: Rig, config: SimulationConfig) -> FlashTruth:
+    """Project emissions into both cameras and decide what each camera records.
+
+    A flash-frame is visible in a camera when its frame lies in that camera's
+    recording and the flash is not hidden by vegetation: a fraction
+    ``config.resolved_occlusion`` of the flashes is hidden from one camera (drawn per
+    flash: a firefly does not leave a leaf's shadow within a 0.1 s flash).
+    """
+    rng = stream(config.seed, "occlusion")
+    n_flashes = int(emitted.flash_id.max(initial=-1)) + 1
+    hidden = rng.random(n_flashes) < config.resolved_occlusion
+    hidden_from = np.where(hidden, rng.integers(1, 3, n_flashes), 0)[emitted.flash_id]
+    frame1 = emitted.frame1
+    frame2 = rig.camera_frames(frame1, 2)
+    columns = {}
+    for camera, frame in ((1, frame1), (2, frame2)):
+        u, v, distance = rig.project(emitted.position, camera)
+        recorded = (frame >= 0) & (frame < rig.n_frames)
+        columns[f"u{camera}"], columns[f"v{camera}"] = u, v
+        columns[f"visible{camera}"] = recorded & (hidden_from != camera)
+        gain = rig.gains[camera - 1]
+        columns[f"peak{camera}"] = gain * spot_peak(
+            emitted.intensity, distance, config.flash_brightness
+        )
+    return FlashTruth(
+        flash_id=emitted.flash_id,
+        firefly_id=emitted.firefly_id,
+        frame1=frame1,
+        frame2=frame2,
+        x=emitted.position[:, 0],
+        y=emitted.position[:, 1],
+        z=emitted.position[:, 2],
+        intensity=emitted.intensity,
+        **columns,
+    )
+
+
+def _render_camera(
+    drawn: SimulationPlan,
+    camera: int,
+    out: Path,
+    progress: Callable[[int], None] | None,
+) -> None:
+    """Render and encode all frames of one camera into its chapter files."""
+    config = drawn.config
+    sizes = chapter_sizes(config.n_frames, config.chapters[camera - 1])
+    renderer = drawn.renderer(camera)
+    paths = drawn.chapter_paths(out, camera)
+    with ChapterWriter(paths, sizes, config.codec, config.crf, config.fps, config.width) as writer:
+        for frame in range(config.n_frames):
+            writer.write(renderer.render(frame))
+            if progress is not None:
+                progress(1)

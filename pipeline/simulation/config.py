@@ -1,0 +1,231 @@
+"""Simulation settings and scenario presets."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal, Self
+
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
+
+#: Scenario name -> one-line description.
+SCENARIOS: dict[str, str] = {
+    "clean": "dark night sky over a treeline, fireflies only",
+    "twilight": "sky brightness ramping down at dusk during the recording",
+    "lights": "persistent lamps / porch lights with glow, and the moon",
+    "headlights": "car headlights sweeping along a distant road, flashlights switched on "
+    "and off and waved about",
+    "foliage": "wind-shaken leaves silhouetted against a bright sky: edges flicker in and out",
+    "field": "a realistic mix: dusk sky, a lamp, the moon, a car, a flashlight, foliage, occlusion",
+    "real3d": "flights and flash timing replayed from real 3D data of fireflies in a tent",
+}
+
+
+@dataclass(frozen=True)
+class ScenarioSpec:
+    """What a scenario puts in the scene besides the fireflies.
+
+    Sky levels are the luma (0–255) of the sky at the horizon at the first and the
+    last frame; the sky fades exponentially between them.
+    """
+
+    sky_start: float = 6.0
+    sky_end: float = 6.0
+    n_lamps: int = 0
+    moon: bool = False
+    n_cars: int = 0
+    n_flashlights: int = 0
+    n_branches: int = 0
+    occlusion: float = 0.0
+    noise_sigma: float = 1.5
+
+
+SCENARIO_SPECS: dict[str, ScenarioSpec] = {
+    "clean": ScenarioSpec(),
+    "twilight": ScenarioSpec(sky_start=140.0, sky_end=10.0, noise_sigma=2.0),
+    "lights": ScenarioSpec(sky_start=10.0, sky_end=10.0, n_lamps=3, moon=True),
+    "headlights": ScenarioSpec(sky_start=8.0, sky_end=8.0, n_cars=3, n_flashlights=2),
+    "foliage": ScenarioSpec(sky_start=240.0, sky_end=240.0, n_branches=9, noise_sigma=2.0),
+    "field": ScenarioSpec(
+        sky_start=60.0,
+        sky_end=15.0,
+        n_lamps=1,
+        moon=True,
+        n_cars=1,
+        n_flashlights=1,
+        n_branches=3,
+        occlusion=0.1,
+        noise_sigma=2.0,
+    ),
+    "real3d": ScenarioSpec(),
+}
+
+FloatRange = tuple[float, float]
+IntRange = tuple[int, int]
+
+
+class SimulationConfig(BaseModel):
+    """Settings of one simulated stereo recording (validated; immutable).
+
+    Distances are in metres, times in seconds unless a name says frames. ``None``
+    for ``delay_frames`` / ``rotation_deg`` means drawn from the seed; ``None`` for
+    ``occlusion`` / ``noise_sigma`` means the scenario's default.
+
+    Attributes
+    ----------
+    scenario : str
+        A key of `SCENARIOS`.
+    seed : int
+        Everything random derives from it.
+    width : int
+        Equirectangular width in pixels (multiple of 4); height ``width // 2``.
+    fps : float
+        Frame rate of both cameras.
+    seconds : float
+        Length of each camera's recording (``round(seconds * fps)`` frames).
+    separation_m, camera_height_m : float
+        Baseline length; height of both cameras above the ground.
+    delay_frames : int or None
+        Camera-1 frame ``k`` shows the instant of camera-2 frame ``k + delay``;
+        drawn within ±1 s when ``None``.
+    rotation_deg : float or None
+        Angle of camera 2's rotation ``R``; drawn in 1–6° (mostly yaw) when ``None``.
+    n_fireflies : int
+        Synthetic fireflies (ignored by ``real3d``).
+    flash_frames, flash_period_s, flashes_per_train, quiet_gap_s : (low, high)
+        Ranges of flash length (frames), flash spacing in a train, flashes per train,
+        and quiet time between trains.
+    flash_brightness : float
+        Peak luma above the background of a typical flash at 5 m.
+    speed_mps, range_m : (low, high)
+        Flight speeds; horizontal distances from the rig.
+    occlusion : float or None
+        Fraction of flashes hidden from one camera by vegetation.
+    noise_sigma : float or None
+        Sensor read noise, luma (shot noise comes on top).
+    codec : {"h264", "hevc"}
+    crf : int
+        Encoder constant rate factor (lower = higher quality).
+    chapters : (int, int)
+        Chapter files per camera.
+    real3d_csv : Path or None
+        ``x,y,z,frame`` file (60 fps) replayed by the ``real3d`` scenario.
+    real3d_swarms : int
+        Stretches of that file replayed at once, each as a swarm at its own azimuth.
+    """
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    scenario: str = "clean"
+    seed: int = Field(0, ge=0)
+    width: int = Field(640, ge=64)
+    fps: float = Field(30.0, gt=0, le=240)
+    seconds: float = Field(20.0, gt=0, le=3600)
+    separation_m: float = Field(1.5, gt=0, le=20)
+    camera_height_m: float = Field(1.2, gt=0, le=10)
+    delay_frames: int | None = None
+    rotation_deg: float | None = Field(None, ge=0, le=45)
+    n_fireflies: int = Field(10, ge=0, le=1000)
+    flash_frames: IntRange = (3, 6)
+    flash_period_s: FloatRange = (0.5, 1.0)
+    flashes_per_train: IntRange = (3, 8)
+    quiet_gap_s: FloatRange = (3.0, 10.0)
+    flash_brightness: float = Field(160.0, gt=0)
+    speed_mps: FloatRange = (0.2, 1.0)
+    range_m: FloatRange = (2.0, 10.0)
+    occlusion: float | None = Field(None, ge=0, le=1)
+    noise_sigma: float | None = Field(None, ge=0, le=50)
+    codec: Literal["h264", "hevc"] = "h264"
+    crf: int = Field(18, ge=0, le=51)
+    chapters: IntRange = (1, 1)
+    real3d_csv: Path | None = None
+    real3d_swarms: int = Field(3, ge=1, le=12)
+
+    @property
+    def height(self) -> int:
+        return self.width // 2
+
+    @property
+    def n_frames(self) -> int:
+        """Frames recorded by each camera."""
+        return round(self.seconds * self.fps)
+
+    @property
+    def spec(self) -> ScenarioSpec:
+        return SCENARIO_SPECS[self.scenario]
+
+    @property
+    def resolved_occlusion(self) -> float:
+        return self.spec.occlusion if self.occlusion is None else self.occlusion
+
+    @property
+    def resolved_noise_sigma(self) -> float:
+        return self.spec.noise_sigma if self.noise_sigma is None else self.noise_sigma
+
+    @field_validator("scenario")
+    @classmethod
+    def _known_scenario(cls, value: str) -> str:
+        if value not in SCENARIOS:
+            raise ValueError(f"unknown scenario {value!r}; choose one of {', '.join(SCENARIOS)}")
+        return value
+
+    @field_validator("width")
+    @classmethod
+    def _width_multiple_of_four(cls, value: int) -> int:
+        if value % 4:
+            raise ValueError(
+                f"width must be a multiple of 4 (yuv420p needs an even height), got {value}"
+            )
+        return value
+
+    @field_validator(
+        "flash_frames",
+        "flash_period_s",
+        "flashes_per_train",
+        "quiet_gap_s",
+        "speed_mps",
+        "range_m",
+    )
+    @classmethod
+    def _ordered_positive_range(cls, value: tuple, info: ValidationInfo) -> tuple:
+        low, high = value
+        if not 0 < low <= high:
+            raise ValueError(f"{info.field_name} must satisfy 0 < low <= high, got {value}")
+        return value
+
+    @field_validator("chapters")
+    @classmethod
+    def _at_least_one_chapter(cls, value: IntRange) -> IntRange:
+        if min(value) < 1:
+            raise ValueError(f"each camera needs at least one chapter file, got {value}")
+        return value
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Self:
+        n = self.n_frames
+        if n < 2:
+            raise ValueError(f"seconds * fps gives {n} frame(s); need at least 2")
+        if self.delay_frames is not None and abs(self.delay_frames) > n // 2:
+            raise ValueError(
+                f"delay_frames={self.delay_frames} leaves the cameras less than half of "
+                f"the {n} frames in common; use |delay_frames| <= {n // 2}"
+            )
+        if max(self.chapters) > n:
+            raise ValueError(f"chapters={self.chapters} exceeds the {n} frames per camera")
+        if self.range_m[0] <= self.separation_m / 2:
+            raise ValueError(
+                f"range_m starts at {self.range_m[0]} m, inside half the camera separation"
+            )
+        if self.scenario == "real3d":
+            if self.real3d_csv is None:
+                raise ValueError("scenario 'real3d' needs real3d_csv (path to x,y,z,frame CSV)")
+            if not Path(self.real3d_csv).is_file():
+                raise ValueError(f"real3d_csv: file not found: {self.real3d_csv}")
+        return self

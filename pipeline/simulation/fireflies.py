@@ -1,0 +1,184 @@
+"""Synthetic fireflies: smooth random flights and trains of short flashes."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.ndimage import gaussian_filter1d
+
+from pipeline.geometry import FloatArray
+from pipeline.simulation.config import SimulationConfig
+from pipeline.simulation.rig import Rig
+
+#: Lowest and highest flight altitude above the ground, metres.
+ALTITUDE_M = (0.2, 3.0)
+#: Time scale over which a flight changes direction, seconds.
+TURN_TIME_S = 0.7
+#: Vertical speed relative to horizontal speed (fireflies mostly cruise level).
+VERTICAL_SPEED_RATIO = 0.3
+
+
+@dataclass(frozen=True)
+class Emissions:
+    """Light emitted by fireflies, one row per flash per camera-1 frame.
+
+    Attributes
+    ----------
+    flash_id, firefly_id : ndarray of int64
+        ``firefly_id`` is ``-1`` where unknown.
+    frame1 : ndarray of int64
+        Camera-1 frame (may be negative: before camera 1 started).
+    position : ndarray, shape (n, 3)
+        Metres, world (= camera 1) frame.
+    intensity : ndarray
+        Emitted intensity relative to a typical flash peak.
+    """
+
+    flash_id: np.ndarray
+    firefly_id: np.ndarray
+    frame1: np.ndarray
+    position: FloatArray
+    intensity: FloatArray
+
+    @classmethod
+    def concat(cls, parts: list[Emissions]) -> Emissions:
+        """Rows of all ``parts`` (flash ids are taken as they are)."""
+        return cls(
+            *(
+                np.concatenate([getattr(p, name) for p in parts])
+                for name in cls.__dataclass_fields__
+            )
+        )
+
+
+def fold(x: FloatArray, low: FloatArray | float, high: FloatArray | float) -> FloatArray:
+    """Reflect ``x`` back and forth into ``[low, high]`` (a continuous triangle wave)."""
+    span = np.asarray(high) - np.asarray(low)
+    y = np.mod(x - low, 2.0 * span)
+    return low + np.where(y > span, 2.0 * span - y, y)
+
+
+def flights(rng: np.random.Generator, config: SimulationConfig, rig: Rig) -> FloatArray:
+    """Smooth random flight paths over the rig's action frames.
+
+    Velocities are Gaussian-smoothed white noise (turning over ``TURN_TIME_S``),
+    scaled to a per-firefly speed in ``config.speed_mps``. The horizontal distance
+    from the midpoint between the cameras is reflected into ``[range_lo + s/2,
+    far_i]`` (``far_i`` drawn per firefly, so most stay well inside the far limit)
+    and the altitude into ``ALTITUDE_M``.
+
+    Returns
+    -------
+    ndarray, shape (n_fireflies, n_action_frames, 3)
+        Positions in metres, world frame.
+    """
+    n, (start, stop) = config.n_fireflies, rig.action_frames
+    steps = stop - start
+    near = config.range_m[0] + config.separation_m / 2
+    far_limit = config.range_m[1] + config.separation_m / 2
+    far = rng.uniform(near + 0.3 * (far_limit - near), far_limit, n)
+
+    velocity = gaussian_filter1d(
+        rng.standard_normal((n, steps, 3)), TURN_TIME_S * config.fps, axis=1
+    )
+    velocity[..., 2] *= VERTICAL_SPEED_RATIO
+    rms = np.sqrt(np.mean(np.sum(velocity[..., :2] ** 2, axis=-1), axis=1))
+    velocity *= (rng.uniform(*config.speed_mps, n) / rms)[:, None, None]
+
+    azimuth = rng.uniform(0, 2 * np.pi, n)
+    rho = rng.uniform(near, far)
+    altitude = rng.uniform(*ALTITUDE_M, n)
+    start_xy = np.stack([rho * np.cos(azimuth), rho * np.sin(azimuth), altitude], axis=-1)
+    path = start_xy[:, None, :] + np.cumsum(velocity, axis=1) / config.fps
+
+    rho_path = np.hypot(path[..., 0], path[..., 1])
+    scale = fold(rho_path, near, far[:, None]) / np.maximum(rho_path, 1e-9)
+    centre = rig.position2 / 2
+    return np.stack(
+        [
+            centre[0] + path[..., 0] * scale,
+            centre[1] + path[..., 1] * scale,
+            fold(path[..., 2], *ALTITUDE_M) - rig.camera_height_m,
+        ],
+        axis=-1,
+    )
+
+
+def expand(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Group index and rank within the group of ``sum(counts)`` items, where group
+    ``g`` holds ``counts[g]`` consecutive items."""
+    group = np.repeat(np.arange(counts.size), counts)
+    return group, np.arange(group.size) - np.repeat(np.cumsum(counts) - counts, counts)
+
+
+def flash_onsets(
+    rng: np.random.Generator, config: SimulationConfig, start_s: float, stop_s: float
+) -> tuple[np.ndarray, FloatArray]:
+    """Onset times of flash trains separated by quiet gaps.
+
+    Each firefly alternates quiet gaps (``quiet_gap_s``) and trains of
+    ``flashes_per_train`` flashes ``flash_period_s`` apart (period drawn per train,
+    jittered by 3 % per flash), starting at a random phase.
+
+    Returns
+    -------
+    firefly_id : ndarray of int64
+    onset_s : ndarray
+        Seconds on camera 1's clock, within ``[start_s, stop_s)``, sorted.
+    """
+    n = config.n_fireflies
+    lo_n, hi_n = config.flashes_per_train
+    shortest_cycle = config.quiet_gap_s[0] + (lo_n - 1) * config.flash_period_s[0]
+    n_trains = int(np.ceil((stop_s - start_s) / shortest_cycle)) + 2
+    mean_cycle = np.mean(config.quiet_gap_s) + (np.mean([lo_n, hi_n]) - 1) * np.mean(
+        config.flash_period_s
+    )
+
+    count = rng.integers(lo_n, hi_n + 1, (n, n_trains))
+    period = rng.uniform(*config.flash_period_s, (n, n_trains))
+    gap = rng.uniform(*config.quiet_gap_s, (n, n_trains))
+    cycle = (count - 1) * period + gap
+    first = start_s - rng.uniform(0, mean_cycle, n)
+    train_start = first[:, None] + np.cumsum(cycle, axis=1) - cycle
+
+    train, index_in_train = expand(count.ravel())
+    jitter = 1.0 + 0.03 * rng.standard_normal(train.size)
+    onset = train_start.ravel()[train] + index_in_train * period.ravel()[train] * jitter
+    firefly = train // n_trains
+    keep = (onset >= start_s) & (onset < stop_s)
+    order = np.argsort(onset[keep], kind="stable")
+    return firefly[keep][order].astype(np.int64), onset[keep][order]
+
+
+def flash_profile(length: np.ndarray) -> tuple[np.ndarray, np.ndarray, FloatArray]:
+    """Frame offsets and rise/fall envelope of flashes lasting ``length`` frames.
+
+    Returns the flash index of every flash-frame, its offset from the onset and
+    ``sin(π (i + ½) / n)^½``: a fast rise, a plateau and a fall, the first and last
+    frames partly exposed.
+    """
+    flash, offset = expand(length)
+    envelope = np.sqrt(np.sin(np.pi * (offset + 0.5) / length[flash]))
+    return flash, offset, envelope
+
+
+def synthetic_emissions(config: SimulationConfig, rig: Rig, rng: np.random.Generator) -> Emissions:
+    """Flash-frames of ``config.n_fireflies`` synthetic fireflies over the action frames."""
+    start, stop = rig.action_frames
+    paths = flights(rng, config, rig)
+    firefly, onset_s = flash_onsets(rng, config, start / config.fps, stop / config.fps)
+    lo, hi = config.flash_frames
+    length = rng.integers(lo, hi + 1, firefly.size)
+    strength = rng.lognormal(0.0, 0.3, firefly.size)
+    flash, offset, envelope = flash_profile(length)
+    frame1 = np.floor(onset_s * config.fps).astype(np.int64)[flash] + offset
+    keep = frame1 < stop
+    flash, frame1 = flash[keep], frame1[keep]
+    return Emissions(
+        flash_id=flash.astype(np.int64),
+        firefly_id=firefly[flash],
+        frame1=frame1,
+        position=paths[firefly[flash], frame1 - start],
+        intensity=strength[flash] * envelope[keep],
+    )

@@ -1,0 +1,163 @@
+"""Rasterising primitives: anti-aliased Gaussian spots and soft discs, drawn only in small
+windows around each primitive, with columns wrapping around the equirectangular seam.
+
+Pixel convention of `pipeline.geometry`: the centre of pixel column ``i`` is ``u = i``,
+so pixel ``i`` covers ``[i − ½, i + ½)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.special import erf
+
+from pipeline.geometry import FloatArray
+
+#: Luma weights of the encoder's RGB -> Y conversion (BT.601, swscale's default).
+LUMA = np.array([0.299, 0.587, 0.114])
+
+
+def unit_luma(rgb: ArrayLike) -> FloatArray:
+    """Scale colours (..., 3) to unit BT.601 luma."""
+    colour = np.asarray(rgb, dtype=np.float64)
+    return colour / (colour @ LUMA)[..., None]
+
+
+#: Firefly colour (yellow-green, ~560 nm after the camera's white balance), unit luma.
+FIREFLY_RGB = unit_luma([0.8, 1.0, 0.25])
+#: Windows reach this many standard deviations from a spot's centre.
+WINDOW_SIGMAS = 3.5
+#: Distance at which a typical flash has ``flash_brightness`` peak luma, metres.
+REFERENCE_RANGE_M = 5.0
+#: Exponent of the camera's tone curve (display gamma ~1/2.2) on linear light.
+TONE_GAMMA = 0.5
+
+
+def apparent_size(
+    size_m: ArrayLike, distance_m: FloatArray, v: FloatArray, width: int
+) -> tuple[FloatArray, FloatArray]:
+    """Vertical size in pixels of objects of ``size_m`` metres at ``distance_m``, and
+    the horizontal stretch ``1 / sin φ`` of the equirectangular projection at row ``v``
+    (capped at 10 near the poles)."""
+    height = width // 2
+    stretch = 1.0 / np.maximum(np.sin(np.pi * np.asarray(v) / height), 0.1)
+    return np.asarray(size_m) / distance_m / (2 * np.pi / width), stretch
+
+
+def spot_sigma(range_m: FloatArray) -> FloatArray:
+    """Point-spread σ in pixels of a point light at ``range_m`` metres.
+
+    0.6–1.5 px: lens blur plus a little blooming that grows as the source gets
+    closer (and brighter).
+    """
+    return np.clip(0.6 + 1.6 / range_m, 0.6, 1.5)
+
+
+def spot_peak(intensity: FloatArray, range_m: FloatArray, brightness: float) -> FloatArray:
+    """Peak luma (0–255 scale, before saturation) of a flash of relative ``intensity``.
+
+    Received light falls as ``1 / r²``; the camera's tone curve compresses it with
+    exponent ``TONE_GAMMA``. ``brightness`` is the peak of a typical flash
+    (``intensity = 1``) at ``REFERENCE_RANGE_M``.
+    """
+    return brightness * (intensity * (REFERENCE_RANGE_M / range_m) ** 2) ** TONE_GAMMA
+
+
+def _pixel_integrals(
+    centre: FloatArray, sigma: FloatArray, half: int
+) -> tuple[NDArray, FloatArray]:
+    """Pixel indices and pixel-integrated unit-peak Gaussians along one axis.
+
+    Returns ``index`` (n, 2 half + 1) and ``weight``: the integral over each pixel of
+    ``exp(−(x − centre)² / 2σ²)``, so that the weights' intensity-weighted mean is
+    ``centre`` to within ``exp(−2π²σ²)`` (aliasing of the pixel grid).
+    """
+    index = np.floor(centre + 0.5).astype(np.int64)[:, None] + np.arange(-half, half + 1)
+    scale = (np.sqrt(2.0) * sigma)[:, None]
+    lower = erf((index - 0.5 - centre[:, None]) / scale)
+    upper = erf((index + 0.5 - centre[:, None]) / scale)
+    return index, 0.5 * (upper - lower) * np.sqrt(2.0 * np.pi) * sigma[:, None]
+
+
+def _window_index(rows: NDArray, cols: NDArray, shape: tuple[int, int]) -> tuple[NDArray, NDArray]:
+    """Flat pixel indices of the windows (n, K, K) and a mask of rows inside the image."""
+    height, width = shape
+    inside = (rows >= 0) & (rows < height)
+    flat = np.clip(rows, 0, height - 1)[:, :, None] * width + np.mod(cols, width)[:, None, :]
+    return flat, np.broadcast_to(inside[:, :, None], flat.shape)
+
+
+def add_spots(
+    image: NDArray[np.float32],
+    u: FloatArray,
+    v: FloatArray,
+    sigma: FloatArray,
+    rgb: FloatArray,
+) -> None:
+    """Add anti-aliased Gaussian spots to an ``(H, W, 3)`` image in place.
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W, 3), float32
+        Linear 0–255 scale; not clipped here.
+    u, v : ndarray, shape (n,)
+        Spot centres in pixels; ``u`` wraps across the seam, rows outside the image
+        are dropped.
+    sigma : ndarray, shape (n,)
+        Gaussian standard deviations in pixels.
+    rgb : ndarray, shape (n, 3)
+        Peak value per channel of each spot.
+    """
+    if len(u) == 0:
+        return
+    half = int(np.ceil(WINDOW_SIGMAS * np.max(sigma)))
+    rows, wy = _pixel_integrals(np.asarray(v, dtype=np.float64), sigma, half)
+    cols, wx = _pixel_integrals(np.asarray(u, dtype=np.float64), sigma, half)
+    flat, inside = _window_index(rows, cols, image.shape[:2])
+    weight = np.where(inside, wy[:, :, None] * wx[:, None, :], 0.0)
+    values = weight[..., None] * np.asarray(rgb)[:, None, None, :]
+    np.add.at(image.reshape(-1, 3), flat.ravel(), values.reshape(-1, 3).astype(np.float32))
+
+
+def disc_coverage(
+    u: FloatArray,
+    v: FloatArray,
+    radius: FloatArray,
+    stretch: FloatArray,
+    shape: tuple[int, int],
+) -> tuple[NDArray[np.int64], NDArray[np.float32]]:
+    """Pixels covered by soft-edged discs (silhouettes) and the covered fraction.
+
+    Parameters
+    ----------
+    u, v : ndarray, shape (n,)
+        Disc centres in pixels (``u`` wraps).
+    radius : ndarray, shape (n,)
+        Vertical radius in pixels.
+    stretch : ndarray, shape (n,)
+        Horizontal stretch of the equirectangular projection at each disc
+        (``1 / sin φ``): a round object spans more columns away from the horizon.
+    shape : (H, W)
+
+    Returns
+    -------
+    index : ndarray of int64
+        Flat indices (``row * W + column``) of the pixels with any coverage.
+    coverage : ndarray of float32
+        Their covered fraction in (0, 1], with a one-pixel linear ramp at the edges
+        (anti-aliasing); overlapping discs saturate at 1.
+    """
+    height, width = shape
+    if len(u) == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.float32)
+    half_v = int(np.ceil(np.max(radius))) + 1
+    half_u = int(np.ceil(np.max(radius * stretch))) + 1
+    rows = np.floor(v + 0.5).astype(np.int64)[:, None] + np.arange(-half_v, half_v + 1)
+    cols = np.floor(u + 0.5).astype(np.int64)[:, None] + np.arange(-half_u, half_u + 1)
+    dy = (rows - v[:, None])[:, :, None]
+    dx = ((cols - u[:, None]) / stretch[:, None])[:, None, :]
+    cover = np.clip(radius[:, None, None] - np.sqrt(dx**2 + dy**2) + 0.5, 0.0, 1.0)
+    flat, inside = _window_index(rows, cols, shape)
+    total = np.bincount(flat.ravel(), np.where(inside, cover, 0.0).ravel(), height * width)
+    index = np.flatnonzero(total)
+    return index, np.minimum(total[index], 1.0).astype(np.float32)

@@ -1,0 +1,375 @@
+"""Temporal calibration: the frame delay between the two cameras.
+
+The per-frame flash counts ``N1(k)`` and ``N2(k)`` of the two cameras are the same
+signal shifted in time (both see most of the same flashes). The delay is the lag of
+their cross-correlation, made robust as in Sarfati's oorb:
+
+1. frames whose count is an outlier (transient light pollution makes counts explode)
+   are neutralised, and leading / trailing empty stretches are trimmed;
+2. RANSAC: many random windows of camera 1 are each matched against camera 2 over the
+   whole lag range by zero-normalised cross-correlation (one batched FFT), each window
+   votes for its best lag;
+3. the delay is the modal vote and the confidence the fraction of windows that agree.
+
+Delay convention (CONTRACT): ``delay_frames`` ``dk`` means camera-1 frame ``k`` shows
+the same instant as camera-2 frame ``k + dk``; ``dk`` may be negative.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
+
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+from numpy.typing import ArrayLike, NDArray
+from pydantic import BaseModel, ConfigDict, Field
+from scipy import fft, signal
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+#: ``1.4826 × MAD`` estimates the standard deviation of Gaussian data.
+_MAD_TO_SIGMA = 1.4826
+#: RANSAC windows correlated per FFT batch.
+_WINDOW_BATCH = 50
+
+
+class SyncError(ValueError):
+    """The delay cannot be estimated at all (no flashes, recordings too short, ...)."""
+
+
+class SyncParams(BaseModel):
+    """Parameters of `estimate_delay`."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    max_delay_s: float = Field(
+        default=120.0, gt=0, description="Largest |delay| searched, in seconds (both signs)."
+    )
+    window_s: float = Field(
+        default=10.0, gt=0, description="Length of each RANSAC window of camera 1, in seconds."
+    )
+    n_windows: int = Field(
+        default=200,
+        ge=100,
+        le=10_000,
+        description="Number of random RANSAC windows (at least 100).",
+    )
+    agree_frames: int = Field(
+        default=0,
+        ge=0,
+        description="A window agrees with the modal delay when its vote is within this many "
+        "frames (0: exact agreement).",
+    )
+    outlier_mads: float = Field(
+        default=6.0,
+        gt=0,
+        description="A frame's count is a light-pollution outlier when it exceeds the median "
+        "non-zero count by more than this many robust standard deviations (1.4826 MAD, at "
+        "least 1 flash).",
+    )
+    min_confidence: float = Field(
+        default=0.5, ge=0, le=1, description="Below this confidence the estimate carries a warning."
+    )
+    seed: int = Field(
+        default=0, ge=0, description="Seed of the random window draw (deterministic)."
+    )
+
+
+@dataclass(frozen=True)
+class DelayEstimate:
+    """Result of `estimate_delay`.
+
+    Attributes
+    ----------
+    delay_frames : int
+        ``dk``: camera-1 frame ``k`` shows the same instant as camera-2 frame ``k + dk``.
+    confidence : float
+        Fraction (0–1) of the voting windows whose vote agrees with ``delay_frames``.
+    n_windows : int
+        Number of windows that voted (windows without any flash contrast do not).
+    votes : ndarray of int64
+        The delay, in frames, voted by each window.
+    lags : ndarray of int64
+        Delays (frames) of the global correlation curve, ``-max .. +max``.
+    correlation : ndarray of float64
+        Global normalised cross-correlation of the cleaned count series at ``lags``
+        (1 would be a perfect match), for the report plot.
+    warnings : tuple of str
+        Reasons to distrust the estimate (low confidence, delay at the search bound).
+    """
+
+    delay_frames: int
+    confidence: float
+    n_windows: int
+    votes: IntArray
+    lags: IntArray
+    correlation: FloatArray
+    warnings: tuple[str, ...] = field(default=())
+
+    def to_dict(self, include_curve: bool = True) -> dict[str, Any]:
+        """JSON-ready summary; ``include_curve=False`` leaves out the (long) curve."""
+        out: dict[str, Any] = {
+            "delay_frames": self.delay_frames,
+            "confidence": self.confidence,
+            "n_windows": self.n_windows,
+            "votes": self.votes.tolist(),
+            "warnings": list(self.warnings),
+        }
+        if include_curve:
+            out["lags"] = self.lags.tolist()
+            out["correlation"] = self.correlation.tolist()
+        return out
+
+
+def estimate_delay(
+    counts1: ArrayLike,
+    counts2: ArrayLike,
+    fps: float,
+    params: SyncParams = SyncParams(),  # noqa: B008 - frozen, immutable default
+) -> DelayEstimate:
+    """Frame delay between two cameras from their per-frame flash counts.
+
+    Parameters
+    ----------
+    counts1, counts2 : array_like of int, shape (n1,), (n2,)
+        Flash counts ``N1(k)``, ``N2(k)`` per frame (`Detections.counts_per_frame`);
+        the recordings may have different lengths.
+    fps : float
+        Frame rate of both cameras, in frames per second (converts the ``*_s``
+        parameters to frames).
+    params : SyncParams
+        Lag bound, RANSAC window length and count, agreement tolerance, seed.
+
+    Returns
+    -------
+    DelayEstimate
+        ``delay_frames`` ``dk`` with camera-1 frame ``k`` ≡ camera-2 frame ``k + dk``.
+        A low confidence is reported in ``warnings``, not raised.
+
+    Raises
+    ------
+    SyncError
+        If a camera has no flashes, or camera 1's active stretch is shorter than a
+        window.
+    ValueError
+        If the counts are not 1-D finite non-negative series or ``fps`` is not positive.
+    """
+    if not (np.isfinite(fps) and fps > 0):
+        raise ValueError(f"fps must be a positive number, got {fps!r}")
+    clean1 = clean_counts(_as_counts(counts1, "counts1"), params.outlier_mads, "camera 1")
+    clean2 = clean_counts(_as_counts(counts2, "counts2"), params.outlier_mads, "camera 2")
+    max_lag = max(1, round(params.max_delay_s * fps))
+    window = max(2, round(params.window_s * fps))
+    active1 = clean1.last - clean1.first
+    if active1 < window:
+        raise SyncError(
+            f"camera 1 has flashes over only {active1} frames, shorter than one window of "
+            f"{window} frames (window_s={params.window_s} at {fps} fps)"
+        )
+    x1, x2 = clean1.centred(), clean2.centred()
+    lags, correlation = global_correlation(x1, x2, max_lag)
+    starts = _window_starts(clean1, window, params)
+    # Batches bound the memory: each window holds (window + 2 max_lag) FFT samples.
+    votes = np.concatenate(
+        [
+            window_votes(x1, x2, starts[i : i + _WINDOW_BATCH], window, max_lag)
+            for i in range(0, len(starts), _WINDOW_BATCH)
+        ]
+    )
+    if len(votes) == 0:
+        raise SyncError("no RANSAC window of camera 1 contains any flash contrast")
+    delay = _modal_vote(votes, lags, correlation)
+    confidence = float(np.mean(np.abs(votes - delay) <= params.agree_frames))
+    warnings = []
+    if confidence < params.min_confidence:
+        warnings.append(
+            f"low delay confidence {confidence:.2f} ({len(votes)} windows, delay {delay} frames)"
+        )
+    if abs(delay) >= max_lag:
+        warnings.append(
+            f"delay {delay} frames is at the search bound ±{max_lag} (max_delay_s="
+            f"{params.max_delay_s}): the true delay may lie beyond it"
+        )
+    return DelayEstimate(
+        delay_frames=delay,
+        confidence=confidence,
+        n_windows=len(votes),
+        votes=votes,
+        lags=lags,
+        correlation=correlation,
+        warnings=tuple(warnings),
+    )
+
+
+class CleanCounts(NamedTuple):
+    """A count series prepared for correlation (see `clean_counts`)."""
+
+    #: Counts as float, outlier frames set to the mean of the clean active frames.
+    series: FloatArray
+    #: First frame with a clean flash.
+    first: int
+    #: One past the last frame with a clean flash.
+    last: int
+    #: Frames with a clean (non-outlier) non-zero count.
+    flash_frames: IntArray
+
+    def centred(self) -> FloatArray:
+        """Series minus its active-stretch mean, zero outside ``[first, last)``.
+
+        Zero is then neutral: trimmed stretches and outlier frames add nothing to a
+        correlation.
+        """
+        out = np.zeros_like(self.series)
+        active = self.series[self.first : self.last]
+        out[self.first : self.last] = active - active.mean()
+        return out
+
+
+def clean_counts(counts: IntArray, outlier_mads: float, name: str = "camera") -> CleanCounts:
+    """Neutralise outlier frames and trim the empty ends of a count series.
+
+    Parameters
+    ----------
+    counts : ndarray of int64
+        Flashes per frame.
+    outlier_mads : float
+        Counts above ``median + outlier_mads · max(1.4826 MAD, 1)`` of the non-zero
+        counts are outliers (light pollution makes counts explode).
+    name : str
+        Camera name for error messages.
+
+    Returns
+    -------
+    CleanCounts
+        Outlier frames are replaced by the mean count of the clean frames of the active
+        stretch ``[first, last)`` (leading and trailing empty stretches trimmed), so that
+        they add nothing to a mean-subtracted correlation.
+
+    Raises
+    ------
+    SyncError
+        If no frame has a clean non-zero count.
+    """
+    nonzero = counts[counts > 0]
+    if len(nonzero) == 0:
+        raise SyncError(f"{name} has no flashes: its delay cannot be estimated")
+    median = np.median(nonzero)
+    sigma = max(_MAD_TO_SIGMA * float(np.median(np.abs(nonzero - median))), 1.0)
+    outlier = counts > median + outlier_mads * sigma
+    flash_frames = np.flatnonzero((counts > 0) & ~outlier)
+    if len(flash_frames) == 0:
+        raise SyncError(f"{name} has only outlier frames (light pollution?), no usable flashes")
+    first, last = int(flash_frames[0]), int(flash_frames[-1]) + 1
+    clean_active = counts[first:last][~outlier[first:last]]
+    series = np.where(outlier, clean_active.mean(), counts.astype(np.float64))
+    return CleanCounts(series, first, last, flash_frames.astype(np.int64))
+
+
+def global_correlation(y1: FloatArray, y2: FloatArray, max_lag: int) -> tuple[IntArray, FloatArray]:
+    """Normalised cross-correlation ``Σ_k y1(k) y2(k + dk) / sqrt(Σ y1² Σ y2²)``.
+
+    Parameters
+    ----------
+    y1, y2 : ndarray of float64
+        Centred count series (`CleanCounts.centred`) of camera 1 and camera 2.
+    max_lag : int
+        Largest ``|dk|`` kept, in frames.
+
+    Returns
+    -------
+    lags : ndarray of int64
+        Delays ``dk`` in frames (those within ``±max_lag`` that overlap at all).
+    correlation : ndarray of float64
+        Correlation at each lag, computed by FFT.
+    """
+    full = signal.correlate(y2, y1, mode="full", method="fft")
+    all_lags = signal.correlation_lags(len(y2), len(y1), mode="full")
+    keep = np.abs(all_lags) <= max_lag
+    norm = np.sqrt(np.sum(y1**2) * np.sum(y2**2))
+    return all_lags[keep].astype(np.int64), full[keep] / (norm if norm > 0 else 1.0)
+
+
+def window_votes(
+    x1: FloatArray, x2: FloatArray, starts: IntArray, window: int, max_lag: int
+) -> IntArray:
+    """Best delay of each camera-1 window by zero-normalised cross-correlation.
+
+    Parameters
+    ----------
+    x1, x2 : ndarray of float64
+        Centred count series (`CleanCounts.centred`) of camera 1 and camera 2.
+    starts : ndarray of int64
+        First camera-1 frame of each window.
+    window : int
+        Window length in frames.
+    max_lag : int
+        Largest ``|dk|`` searched, in frames.
+
+    Window ``[s, s + window)`` of ``x1`` is compared with ``x2[s + dk : s + dk + window]``
+    for every ``dk`` in ``[-max_lag, max_lag]`` (camera 2 is zero beyond its ends). All
+    windows are correlated in one batched FFT. Windows without contrast (constant
+    counts) do not vote.
+
+    Returns
+    -------
+    ndarray of int64
+        One delay (frames) per voting window.
+    """
+    n_lags = 2 * max_lag + 1
+    padded = np.zeros(max_lag + max(len(x1), len(x2)) + max_lag + window)
+    padded[max_lag : max_lag + len(x2)] = x2
+    # segments[i, j] is camera-2 frame starts[i] - max_lag + j.
+    segments = sliding_window_view(padded, window + n_lags - 1)[starts]
+    templates = sliding_window_view(x1, window)[starts]
+    templates = templates - templates.mean(axis=1, keepdims=True)
+    n_fft = fft.next_fast_len(window + n_lags - 1, real=True)
+    numerator = fft.irfft(
+        fft.rfft(segments, n_fft, axis=1) * np.conj(fft.rfft(templates, n_fft, axis=1)),
+        n_fft,
+        axis=1,
+    )[:, :n_lags]
+    # Local energy of camera 2 under the window at each lag, from cumulative sums.
+    csum = np.concatenate([[0.0], np.cumsum(padded)])
+    csum2 = np.concatenate([[0.0], np.cumsum(padded**2)])
+    first = starts[:, None] + np.arange(n_lags)
+    s1 = csum[first + window] - csum[first]
+    s2 = csum2[first + window] - csum2[first]
+    local_var = np.maximum(s2 - s1**2 / window, 0.0)
+    template_norm = np.sqrt(np.sum(templates**2, axis=1))
+    # A flat camera-2 stretch carries no timing information: score it 0, not 0/0.
+    score = np.where(local_var > 1e-9, numerator / np.sqrt(np.maximum(local_var, 1e-9)), 0.0)
+    votes = np.argmax(score, axis=1) - max_lag
+    return votes[template_norm > 0].astype(np.int64)
+
+
+def _as_counts(counts: ArrayLike, name: str) -> IntArray:
+    arr = np.asarray(counts)
+    if arr.ndim != 1:
+        raise ValueError(f"{name} must be a 1-D per-frame count series, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)) or np.any(arr < 0):
+        raise ValueError(f"{name} must hold finite non-negative counts")
+    return arr.astype(np.int64)
+
+
+def _window_starts(clean1: CleanCounts, window: int, params: SyncParams) -> IntArray:
+    """Random window starts, each window centred on a random camera-1 flash frame.
+
+    Centring on flashes keeps windows where the data are: sparse activity in a long
+    recording would otherwise leave most uniform windows empty.
+    """
+    rng = np.random.default_rng(params.seed)
+    centres = rng.choice(clean1.flash_frames, size=params.n_windows, replace=True)
+    return np.clip(centres - window // 2, clean1.first, clean1.last - window).astype(np.int64)
+
+
+def _modal_vote(votes: IntArray, lags: IntArray, correlation: FloatArray) -> int:
+    """Most voted delay; ties go to the higher global correlation, then the smaller |dk|."""
+    values, n = np.unique(votes, return_counts=True)
+    tied = values[n == n.max()]
+    curve = np.full(len(tied), -np.inf)
+    found = np.isin(tied, lags)
+    curve[found] = correlation[np.searchsorted(lags, tied[found])]
+    best = np.lexsort((np.abs(tied), -curve))[0]
+    return int(tied[best])

@@ -1,0 +1,87 @@
+"""The FastAPI application: REST API under ``/api/v1``, health checks, web pages."""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from pathlib import Path
+
+from fastapi import FastAPI, Request, status
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from fastapi.staticfiles import StaticFiles
+
+from pipeline import __version__
+from services.api.jobs import API_PREFIX
+from services.api.routers import admin, downloads, health, jobs, nights, pages
+from services.core.db import make_engine, make_session_factory
+from services.core.settings import Settings, get_settings
+from services.core.storage import (
+    MissingObjectError,
+    StorageError,
+    TransientStorageError,
+    make_storage,
+)
+from services.core.workflow import EnqueueError, WorkflowError
+from services.worker.celery_app import make_celery
+from services.worker.dispatch import sender
+
+DESCRIPTION = """
+Upload stereo 360° recordings of firefly swarms, follow their processing, download
+3D flash trajectories.
+
+Authenticate with `Authorization: Bearer <token>`: a team token (`firefly3d admin
+create-team NAME`) for a team's own nights and jobs, or the admin token for
+`/api/v1/admin`. Errors are JSON `{"detail": ...}`; 422 details say which field is wrong.
+"""
+
+
+def _error(code: int, exc: Exception) -> JSONResponse:
+    return JSONResponse({"detail": str(exc)}, status_code=code)
+
+
+def _invalid_request(_: Request, exc: Exception) -> JSONResponse:
+    # FastAPI's default echoes each bad input back, which fails on NaN and can be huge.
+    assert isinstance(exc, RequestValidationError)
+    detail = [{k: e[k] for k in ("type", "loc", "msg") if k in e} for e in exc.errors()]
+    return JSONResponse({"detail": detail}, status_code=status.HTTP_422_UNPROCESSABLE_CONTENT)
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """The API with its own database engine, storage client and broker producer."""
+    settings = settings or get_settings()
+    engine = make_engine(settings.database_url)
+    celery = make_celery(settings)
+
+    @asynccontextmanager
+    async def lifespan(_: FastAPI) -> AsyncIterator[None]:
+        yield
+        engine.dispose()
+
+    app = FastAPI(
+        title="firefly3d", version=__version__, description=DESCRIPTION, lifespan=lifespan
+    )
+    app.state.settings = settings
+    app.state.sessions = make_session_factory(engine)
+    app.state.storage = make_storage(settings)
+    app.state.celery = celery
+    app.state.send = sender(celery, settings.queue)
+
+    for router in (nights.router, jobs.router, downloads.router, admin.router):
+        app.include_router(router, prefix=API_PREFIX)
+    app.include_router(health.router)
+    app.include_router(pages.router)
+    static = Path(__file__).resolve().parent / "static"
+    app.mount("/static", StaticFiles(directory=static), name="static")
+
+    handlers: list[tuple[type[Exception], int]] = [
+        (WorkflowError, status.HTTP_409_CONFLICT),
+        (EnqueueError, status.HTTP_503_SERVICE_UNAVAILABLE),
+        (TransientStorageError, status.HTTP_503_SERVICE_UNAVAILABLE),
+        (MissingObjectError, status.HTTP_404_NOT_FOUND),
+        (StorageError, status.HTTP_502_BAD_GATEWAY),
+    ]
+    app.add_exception_handler(RequestValidationError, _invalid_request)
+    for exc_type, code in handlers:
+        app.add_exception_handler(exc_type, lambda _r, e, code=code: _error(code, e))
+    return app

@@ -1,0 +1,265 @@
+"""Request and response bodies of the REST API (pydantic; separate from the ORM models)."""
+
+from __future__ import annotations
+
+import datetime as dt
+import re
+import uuid
+from typing import Annotated, Any, Literal
+
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from pipeline.triangulate import MAX_SEPARATION_M
+from services.core.workflow import STAGES
+
+CONTROL_CHARS = re.compile(r"[\x00-\x08\x0b-\x1f\x7f]")
+FILENAME_FORBIDDEN = re.compile(r"[\x00-\x1f\x7f/\\]")
+
+
+def _no_control_chars(value: str) -> str:
+    if CONTROL_CHARS.search(value):
+        raise ValueError("must not contain control characters")
+    return value
+
+
+def _single_line(value: str) -> str:
+    if "\n" in value or "\t" in value:
+        raise ValueError("must be a single line")
+    return _no_control_chars(value).strip()
+
+
+def _safe_filename(value: str) -> str:
+    if FILENAME_FORBIDDEN.search(value) or value.strip() in ("", ".", ".."):
+        raise ValueError(
+            f"file name {value!r} must be a plain name: no folders, '/', '\\', '..' "
+            "or control characters"
+        )
+    return value
+
+
+Line = Annotated[str, AfterValidator(_single_line)]
+Text = Annotated[str, AfterValidator(_no_control_chars)]
+FileName = Annotated[str, Field(min_length=1, max_length=255), AfterValidator(_safe_filename)]
+StageName = Literal["probe", "track", "merge", "sync", "pose", "triangulate", "link", "report"]
+assert set(StageName.__args__) == set(STAGES)  # type: ignore[attr-defined]
+
+FIRST_DATE = dt.date(2000, 1, 1)
+
+
+class Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+# -- nights ------------------------------------------------------------------------------
+
+
+class NightCreate(Strict):
+    """A recording session: where, when, and how the two cameras were set up."""
+
+    site: Line = Field(min_length=1, max_length=200, examples=["Congaree, Weston Lake loop"])
+    date: dt.date = Field(description="local date the recording started")
+    latitude: float | None = Field(default=None, ge=-90, le=90)
+    longitude: float | None = Field(default=None, ge=-180, le=180)
+    separation_m: float = Field(
+        gt=0,
+        le=MAX_SEPARATION_M,
+        description="measured distance between the two cameras, metres",
+        examples=[1.5],
+    )
+    height_m: float | None = Field(default=None, ge=0, le=100, description="camera height, metres")
+    notes: Text = Field(default="", max_length=5000)
+
+    @field_validator("date")
+    @classmethod
+    def _plausible_date(cls, value: dt.date) -> dt.date:
+        tomorrow = dt.datetime.now(dt.UTC).date() + dt.timedelta(days=1)
+        if not FIRST_DATE <= value <= tomorrow:
+            raise ValueError(f"date must be between {FIRST_DATE} and {tomorrow}")
+        return value
+
+
+class JobBrief(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+
+    id: uuid.UUID
+    status: str
+    created_at: dt.datetime
+
+
+class NightOut(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+
+    id: uuid.UUID
+    site: str
+    date: dt.date
+    latitude: float | None
+    longitude: float | None
+    separation_m: float
+    height_m: float | None
+    notes: str
+    created_at: dt.datetime
+    jobs: list[JobBrief] = []
+
+
+# -- jobs and files ----------------------------------------------------------------------
+
+
+class FileDeclaration(Strict):
+    """One chapter file of one camera, declared before it is uploaded."""
+
+    camera: int = Field(description="1 or 2", examples=[1])
+    chapter: int = Field(ge=0, le=998, description="0-based position in the camera's recording")
+    filename: FileName = Field(examples=["GS010042.mp4"])
+    size: int = Field(gt=0, description="bytes")
+    sha256: str = Field(description="hex SHA-256 of the whole file", examples=["0" * 64])
+
+    @field_validator("camera")
+    @classmethod
+    def _known_camera(cls, value: int) -> int:
+        if value not in (1, 2):
+            raise ValueError(f"unknown camera {value}: cameras are 1 and 2")
+        return value
+
+    @field_validator("sha256")
+    @classmethod
+    def _hex_digest(cls, value: str) -> str:
+        if not re.fullmatch(r"[0-9a-fA-F]{64}", value):
+            raise ValueError("sha256 must be 64 hexadecimal digits")
+        return value.lower()
+
+
+class JobCreate(Strict):
+    """A stereo pair to process: each camera's chapter files, in order from 0."""
+
+    night_id: uuid.UUID
+    files: list[FileDeclaration] = Field(min_length=2, max_length=2 * 999)
+    params: dict[str, Any] | None = Field(
+        default=None,
+        description="parameter overrides, deep-merged into the defaults (ProcessParams)",
+    )
+
+    @model_validator(mode="after")
+    def _chapters_complete(self) -> JobCreate:
+        for camera in (1, 2):
+            chapters = sorted(f.chapter for f in self.files if f.camera == camera)
+            if not chapters:
+                raise ValueError(f"camera {camera} has no chapter files")
+            if chapters != list(range(len(chapters))):
+                raise ValueError(
+                    f"camera {camera}: chapters must be numbered 0, 1, 2, … without gaps or "
+                    f"repeats; got {', '.join(map(str, chapters))}"
+                )
+        return self
+
+
+class FileOut(BaseModel):
+    """A declared file, its upload state and how to upload it."""
+
+    camera: int
+    chapter: int
+    filename: str
+    size: int
+    sha256: str
+    upload_state: str
+    method: Literal["s3-multipart", "stream"]
+    part_size: int = Field(description="bytes per part (multipart) or per PUT request (stream)")
+    part_count: int
+    upload_url: str = Field(description="stream: PUT here; multipart: POST {url}/parts to sign")
+
+
+class FileStatus(FileOut):
+    received_bytes: int
+    uploaded_parts: list[int] = Field(description="multipart: part numbers already stored")
+
+
+class PartsRequest(Strict):
+    part_numbers: list[int] = Field(min_length=1, max_length=100)
+
+    @field_validator("part_numbers")
+    @classmethod
+    def _in_range(cls, numbers: list[int]) -> list[int]:
+        if any(not 1 <= n <= 10_000 for n in numbers):
+            raise ValueError("part numbers run from 1 to 10000")
+        return numbers
+
+
+class PartUrl(BaseModel):
+    number: int
+    url: str
+
+
+class PartsSigned(BaseModel):
+    part_size: int
+    part_count: int
+    expires_s: int
+    parts: list[PartUrl]
+
+
+class StageOut(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+
+    key: str
+    name: str
+    camera: int | None
+    frame_start: int | None
+    frame_stop: int | None
+    status: str
+    attempt: int
+    progress: float
+    started_at: dt.datetime | None
+    finished_at: dt.datetime | None
+    metrics: dict[str, Any]
+    warnings: list[str]
+    error: str | None
+
+
+class JobOut(BaseModel):
+    id: uuid.UUID
+    night_id: uuid.UUID
+    status: str
+    error: str | None
+    progress: float = Field(description="fraction of the pipeline done, 0–1")
+    params: dict[str, Any]
+    created_at: dt.datetime
+    submitted_at: dt.datetime | None
+    started_at: dt.datetime | None
+    finished_at: dt.datetime | None
+    files: list[FileOut]
+    stages: list[StageOut]
+    summary: dict[str, Any] = Field(description="headline metrics of the finished stages")
+
+
+class ArtifactOut(BaseModel):
+    name: str
+    size: int
+    content_type: str
+    stage: str
+    category: Literal["result", "intermediate"]
+    url: str = Field(description="short-lived download link (no token needed)")
+
+
+# -- admin -------------------------------------------------------------------------------
+
+
+class RerunRequest(Strict):
+    from_stage: StageName | None = Field(
+        default=None, description="default: the first stage that has not succeeded"
+    )
+    params: dict[str, Any] | None = Field(default=None, description="parameter overrides")
+
+
+class RerunOut(BaseModel):
+    job_id: uuid.UUID
+    from_stage: str
+    status: str
+
+
+class AdminJobOut(BaseModel):
+    id: uuid.UUID
+    team: str
+    night_id: uuid.UUID
+    site: str
+    date: dt.date
+    status: str
+    error: str | None
+    updated_at: dt.datetime

@@ -1,0 +1,184 @@
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from pipeline.detections import Detections
+from pipeline.geometry import Pose, angle_between, bearing_to_pixel, rotation_angle
+from pipeline.pose import (
+    CalibrationPairs,
+    PoseError,
+    PoseParams,
+    calibration_pairs,
+    essential_matrix_pose,
+    estimate_pose,
+)
+
+SEPARATION = 1.5
+WIDTH = 640
+
+
+def scene(
+    rng: np.random.Generator, translation: list[float], n: int = 400
+) -> tuple[Pose, np.ndarray, np.ndarray, np.ndarray]:
+    """A side-by-side pose (a few degrees of rotation) and exact bearings of points 1–15 m
+    from camera 1 (in front of camera 2 too)."""
+    pose = Pose(Rotation.from_rotvec(np.radians([1.0, -2.0, 3.0])).as_matrix(), translation)
+    direction = rng.normal(size=(n, 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    points = rng.uniform(1.0, 15.0, (n, 1)) * direction
+    in_camera2 = pose.world_to_camera2(points, SEPARATION)
+    bearing2 = in_camera2 / np.linalg.norm(in_camera2, axis=1, keepdims=True)
+    return pose, points, direction, bearing2
+
+
+def jitter(rng: np.random.Generator, bearing: np.ndarray, sigma_deg: float) -> np.ndarray:
+    """Bearings with isotropic angular noise of ``sigma_deg`` per axis."""
+    noise = np.radians(sigma_deg) * rng.normal(size=bearing.shape)
+    noise -= np.sum(noise * bearing, axis=1, keepdims=True) * bearing
+    moved = bearing + noise
+    return moved / np.linalg.norm(moved, axis=1, keepdims=True)
+
+
+def errors_deg(est_pose: Pose, truth: Pose) -> tuple[float, float]:
+    rotation = np.degrees(rotation_angle(est_pose.rotation, truth.rotation))
+    translation = np.degrees(angle_between(est_pose.translation, truth.translation))
+    return rotation, float(translation)
+
+
+DIRECTIONS = [[0, 1, 0], [0, -1, 0], [1, 0, 0], [-1, 0, 0], [0.6, -0.75, 0.28]]
+
+
+@pytest.mark.parametrize("translation", DIRECTIONS)
+def test_noiseless_pairs_give_exact_pose(translation: list[float]) -> None:
+    rng = np.random.default_rng(0)
+    truth, _, b1, b2 = scene(rng, translation)
+    est = estimate_pose(CalibrationPairs(np.arange(len(b1)), b1, b2))
+    rotation, direction = errors_deg(est.pose, truth)
+    assert rotation < 1e-4 and direction < 1e-4
+    assert est.n_inliers == est.n_pairs == len(b1)
+    assert est.stats["median_deg"] < 1e-4
+
+
+@pytest.mark.parametrize("translation", DIRECTIONS)
+def test_noisy_pairs_with_outliers(translation: list[float]) -> None:
+    rng = np.random.default_rng(1)
+    truth, _, b1, b2 = scene(rng, translation)
+    b1, b2 = jitter(rng, b1, 0.1), jitter(rng, b2, 0.1)
+    # 30 % of the single-flash frames pair two different fireflies.
+    swapped = rng.permutation(len(b1))[: int(0.3 * len(b1))]
+    b2[swapped] = b2[np.roll(swapped, 1)]
+    est = estimate_pose(CalibrationPairs(np.arange(len(b1)), b1, b2))
+    rotation, direction = errors_deg(est.pose, truth)
+    assert rotation <= 0.1
+    assert direction <= 0.5
+    outlier = np.zeros(len(b1), dtype=bool)
+    outlier[swapped] = True
+    # Nearly all true pairs kept; mismatches rejected unless they happen to fit.
+    assert np.mean(est.inliers[~outlier]) > 0.97
+    assert np.mean(est.inliers[outlier]) < 0.1
+    assert est.stats["median_deg"] < 0.2
+    assert est.warnings == ()
+
+
+def test_noise_without_outliers_meets_targets() -> None:
+    rng = np.random.default_rng(2)
+    truth, _, b1, b2 = scene(rng, [0, 1, 0])
+    est = estimate_pose(CalibrationPairs(np.arange(len(b1)), jitter(rng, b1, 0.1), b2))
+    rotation, direction = errors_deg(est.pose, truth)
+    assert rotation <= 0.1 and direction <= 0.5
+
+
+def test_sign_of_translation_from_cheirality() -> None:
+    rng = np.random.default_rng(3)
+    truth, _, b1, b2 = scene(rng, [0, -1, 0])
+    est = estimate_pose(CalibrationPairs(np.arange(len(b1)), b1, b2))
+    # Not −t̂: that pose fits the same unsigned gaps but puts the points behind.
+    assert est.pose.translation @ truth.translation > 0.999
+    assert np.all(est.inliers)
+
+
+def test_large_rotation_found_from_essential_matrix_start() -> None:
+    rng = np.random.default_rng(4)
+    truth = Pose(Rotation.from_euler("zyx", [70, 20, -15], degrees=True).as_matrix(), [1, 1, 0])
+    points = rng.uniform(-12, 12, (300, 3))
+    b1 = points / np.linalg.norm(points, axis=1, keepdims=True)
+    c2 = truth.world_to_camera2(points, SEPARATION)
+    b2 = c2 / np.linalg.norm(c2, axis=1, keepdims=True)
+    start = essential_matrix_pose(b1, b2)
+    assert max(errors_deg(start, truth)) < 1e-4
+    est = estimate_pose(CalibrationPairs(np.arange(300), jitter(rng, b1, 0.1), b2))
+    rotation, direction = errors_deg(est.pose, truth)
+    assert rotation <= 0.1 and direction <= 0.5
+
+
+def test_residuals_are_angular_and_gaps_in_separation_units() -> None:
+    rng = np.random.default_rng(5)
+    truth, points, b1, b2 = scene(rng, [0, 1, 0], n=60)
+    depth = np.linalg.norm(points, axis=1)
+    near, far = np.argsort(depth)[:5], np.argsort(depth)[-5:]
+    bad = np.r_[near, far]
+    # Turn these camera-2 bearings by 2° out of their epipolar planes.
+    normal = np.cross(truth.translation, b1[bad]) @ truth.rotation.T
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    b2_bad = b2.copy()
+    b2_bad[bad] = np.cos(np.radians(2.0)) * b2[bad] + np.sin(np.radians(2.0)) * normal
+    est = estimate_pose(CalibrationPairs(np.arange(60), b1, b2_bad))
+    assert not est.inliers[bad].any() and est.inliers.sum() == 50
+    # In degrees the misses read about the same near and far: at most the 2° turn, at
+    # least the RSS split of it over both bearings, less near the cameras.
+    assert np.all((est.residuals[bad] > 1.0) & (est.residuals[bad] <= 2.0))
+    assert est.residuals[far].min() > 1.3
+    # The raw gap (separation units) grows with depth.
+    assert np.median(est.gaps[far]) > 4 * np.median(est.gaps[near])
+    assert est.stats["p90_gap"] < 1e-6 and est.stats["p90_deg"] < 1e-4
+
+
+def test_calibration_pairs_use_single_flash_frames_after_delay() -> None:
+    rng = np.random.default_rng(6)
+    _, _, b1, b2 = scene(rng, [0, 1, 0], n=6)
+    u1, v1 = bearing_to_pixel(b1, WIDTH)
+    u2, v2 = bearing_to_pixel(b2, WIDTH)
+    delay = -3
+    # Camera-1 frames 10..15 each hold one flash; frame 12 holds an extra one, and
+    # camera 2 misses the flash of frame 14 and has two in frame 15.
+    det1 = Detections.from_columns(
+        [10, 11, 12, 12, 13, 14, 15], np.r_[u1[:3], 5.0, u1[3:]], np.r_[v1[:3], 5.0, v1[3:]]
+    )
+    frames2 = np.array([10, 11, 12, 13, 15, 15]) + delay
+    det2 = Detections.from_columns(frames2, np.r_[u2[:4], u2[5], 7.0], np.r_[v2[:4], v2[5], 7.0])
+    pairs = calibration_pairs(det1, det2, delay, WIDTH)
+    np.testing.assert_array_equal(pairs.frame1, [10, 11, 13])
+    np.testing.assert_allclose(pairs.bearing1, b1[[0, 1, 3]], atol=1e-12)
+    np.testing.assert_allclose(pairs.bearing2, b2[[0, 1, 3]], atol=1e-12)
+
+
+def test_too_few_pairs_raise() -> None:
+    rng = np.random.default_rng(7)
+    _, _, b1, b2 = scene(rng, [0, 1, 0], n=5)
+    with pytest.raises(PoseError, match="only 5 calibration pairs"):
+        estimate_pose(CalibrationPairs(np.arange(5), b1, b2))
+
+
+def test_half_mismatched_pairs_warn_and_unrelated_pairs_raise() -> None:
+    rng = np.random.default_rng(8)
+    truth, _, b1, b2 = scene(rng, [0, 1, 0], n=200)
+    mismatched = b2.copy()
+    mismatched[90:] = b2[90:][rng.permutation(110)]
+    est = estimate_pose(CalibrationPairs(np.arange(200), b1, mismatched))
+    assert max(errors_deg(est.pose, truth)) < 0.01
+    assert 90 <= est.n_inliers < 100
+    assert any("pose inliers" in w for w in est.warnings)
+    unrelated = CalibrationPairs(np.arange(200), b1, b2[rng.permutation(200)])
+    with pytest.raises(PoseError, match="agree on a pose"):
+        estimate_pose(unrelated)
+
+
+def test_params_validation() -> None:
+    with pytest.raises(ValueError, match="exceeds max_threshold_deg"):
+        PoseParams(min_threshold_deg=3.0, max_threshold_deg=2.0)
+
+
+def test_bad_width_raises() -> None:
+    det = Detections.from_columns([0], [1.0], [1.0])
+    with pytest.raises(ValueError, match="width"):
+        calibration_pairs(det, det, 0, 641)

@@ -1,0 +1,412 @@
+"""Flash-candidate tracking on synthetic videos with known spots (pipeline.tracking)."""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pytest
+from numpy.typing import NDArray
+from pydantic import ValidationError
+
+from pipeline.detections import Detections
+from pipeline.tracking import (
+    CLASSIFY_BATCH,
+    PROGRESS_EVERY,
+    TrackingParams,
+    _BlockEwma,
+    _BoxMean,
+    chunk_ranges,
+    frames_read,
+    track,
+    track_with_stats,
+)
+from pipeline.video import VideoInfo, iter_frames, probe_video
+from tests.pipeline import video_factory as vf
+
+H, W, FPS = 320, 640, 30.0
+BACKGROUND = 20.0
+# Short time constants so that 1–3 s videos exercise warm-up, blocks and absorption.
+FAST = TrackingParams(tau_s=0.3, block_s=0.5, warmup_tau=1.0)
+
+
+@dataclass
+class CentreBrightness:
+    """A real `PatchClassifier`: the brightest channel of the centre pixel, scaled to 0–1."""
+
+    input_size: int = 9
+    batch_sizes: list[int] = field(default_factory=list)
+
+    def predict(self, patches: NDArray[np.uint8]) -> NDArray[np.float32]:
+        self.batch_sizes.append(len(patches))
+        centre = patches[:, self.input_size // 2, self.input_size // 2, :]
+        return (centre.max(axis=-1) / 255.0).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class Scene:
+    info: VideoInfo
+    truth: NDArray[np.float64]  # frame, u, v, amplitude
+
+
+def _wrapped_distance(x: NDArray[np.float64], u: float) -> NDArray[np.float64]:
+    return np.abs((x - u + W / 2) % W - W / 2)
+
+
+@pytest.fixture(scope="module")
+def spots(tmp_path_factory: pytest.TempPathFactory) -> Scene:
+    """Every third frame shows six spots at random sub-pixel positions: one straddles
+    the u = 0 seam, one touches the top pole and one the bottom pole."""
+    rng = np.random.default_rng(7)
+    pictures, truth = [], []
+    for k in range(45):
+        if k >= 6 and k % 3 == 0:
+            u = rng.uniform(0, W, 6)
+            v = rng.uniform(4, H - 4, 6)
+            u[0] = rng.uniform(-0.5, 0.5) % W
+            v[1] = rng.uniform(1.2, 2.0)
+            v[2] = rng.uniform(H - 3.0, H - 2.2)
+            amplitude = rng.uniform(120, 220, 6)
+            truth += [(k, *row) for row in zip(u, v, amplitude, strict=True)]
+        else:
+            u = v = amplitude = np.zeros(0)
+        pictures.append(vf.gaussian_spots(H, W, u, v, amplitude, 1.0, BACKGROUND))
+    path = vf.write_video(tmp_path_factory.mktemp("spots") / "spots.mp4", pictures, crf=8)
+    return Scene(probe_video([path]), np.array(truth))
+
+
+def _match(detections: Detections, truth: NDArray[np.float64]) -> NDArray[np.intp]:
+    """Row of the nearest detection in the same frame, for each true spot."""
+    rows = []
+    for k, u, v, _ in truth:
+        in_frame = np.flatnonzero(detections.frame == k)
+        distance = np.hypot(
+            _wrapped_distance(detections.x[in_frame], u), detections.y[in_frame] - v
+        )
+        rows.append(in_frame[np.argmin(distance)])
+    return np.array(rows)
+
+
+def _centroid_errors(detections: Detections, truth: NDArray[np.float64]) -> NDArray[np.float64]:
+    assert len(detections) == len(truth)  # nothing spurious, the seam spot not split
+    rows = _match(detections, truth)
+    assert len(set(rows.tolist())) == len(rows)
+    assert np.all((detections.x >= 0) & (detections.x < W))
+    dx = _wrapped_distance(detections.x[rows], truth[:, 1])
+    return np.hypot(dx, detections.y[rows] - truth[:, 2])
+
+
+@pytest.mark.parametrize("background", ["ewma", "box"])
+def test_spots_are_found_once_with_subpixel_centroids(spots: Scene, background: str) -> None:
+    params = FAST.model_copy(update={"background": background})
+    error = _centroid_errors(track(spots.info, params=params), spots.truth)
+    assert error.max() < 0.2
+
+
+def test_blurred_tracking_keeps_subpixel_centroids(spots: Scene) -> None:
+    params = FAST.model_copy(update={"blur_px": 1.0})
+    error = _centroid_errors(track(spots.info, params=params), spots.truth)
+    # The blur widens spots to σ ≈ 1.4 px; near a pole their tail is cut by the frame edge.
+    near_pole = np.minimum(spots.truth[:, 2], H - 1 - spots.truth[:, 2]) < 3
+    assert error[~near_pole].max() < 0.2
+    assert error[near_pole].max() < 0.3
+
+
+def test_blob_measurements(spots: Scene) -> None:
+    detections = track(spots.info, params=FAST)
+    rows = _match(detections, spots.truth)
+    u, v, amplitude = spots.truth[:, 1], spots.truth[:, 2], spots.truth[:, 3]
+    # The brightest pixel is a pixel next to the true centre.
+    peak_offset = np.hypot(
+        _wrapped_distance(detections.peak_x[rows], u), detections.peak_y[rows] - v
+    )
+    assert peak_offset.max() <= math.sqrt(0.5) + 1e-9
+    # Peak foreground: the spot's value at its nearest pixel, up to compression.
+    expected_peak = amplitude * np.exp(-(peak_offset**2) / 2)
+    assert np.abs(detections.peak[rows] - expected_peak).max() < 8
+    # A σ = 1 px spot of 120–220 above background: π·2 ln(A/T) ≈ 10–14 pixels above T.
+    assert detections.area.min() >= 8 and detections.area.max() <= 16
+    assert np.all(np.isnan(detections.flash_probability))
+
+
+def test_brightest_pixel_is_the_luminance_maximum_of_the_blob(spots: Scene) -> None:
+    detections = track(spots.info, params=FAST)
+    frames = {f.index: f.y.copy() for f in iter_frames(spots.info)}
+    for k, px, py in zip(detections.frame, detections.peak_x, detections.peak_y, strict=True):
+        luma = frames[int(k)]
+        rows = np.clip(np.arange(py - 1, py + 2), 0, H - 1)
+        window = luma[np.ix_(rows, np.arange(px - 1, px + 2) % W)]
+        assert luma[py, px] == window.max()
+
+
+@pytest.fixture(scope="module")
+def lamps(tmp_path_factory: pytest.TempPathFactory) -> tuple[VideoInfo, dict[str, object]]:
+    """Static lamps, a lamp switched on at frame 45, a slow ramp and a few flashes."""
+    n = 90
+    static = ([100.0, 400.0], [80.0, 250.0])
+    switched = (300.0, 150.0)
+    flashes = {20: (500.3, 60.6), 50: (200.7, 290.2), 75: (600.1, 30.4)}
+    ramp_rows, ramp_cols = slice(200, 260), slice(60, 160)
+    pictures = []
+    for k in range(n):
+        background = np.full((H, W), BACKGROUND)
+        background[ramp_rows, ramp_cols] += 40.0 * k / n  # 13 grey levels per second
+        u, v = list(static[0]), list(static[1])
+        amplitude = [200.0, 200.0]
+        if k >= 45:
+            u.append(switched[0]), v.append(switched[1]), amplitude.append(200.0)
+        if k in flashes:
+            u.append(flashes[k][0]), v.append(flashes[k][1]), amplitude.append(180.0)
+        pictures.append(vf.gaussian_spots(H, W, u, v, amplitude, 1.0, background))
+    path = vf.write_video(tmp_path_factory.mktemp("lamps") / "lamps.mp4", pictures, crf=8)
+    scene = {
+        "static": static,
+        "switched": switched,
+        "flashes": flashes,
+        "ramp": (ramp_rows, ramp_cols),
+    }
+    return probe_video([path]), scene
+
+
+def _near(detections: Detections, u: float, v: float, radius: float = 3.0) -> NDArray[np.bool_]:
+    return np.hypot(_wrapped_distance(detections.x, u), detections.y - v) < radius
+
+
+@pytest.mark.parametrize("background", ["ewma", "box"])
+def test_lamps_and_slow_ramps_are_absorbed(lamps: tuple[VideoInfo, dict], background: str) -> None:
+    info, scene = lamps
+    params = TrackingParams(tau_s=0.5, background=background)  # type: ignore[arg-type]
+    detections = track(info, params=params)
+    for u, v in zip(*scene["static"], strict=True):
+        assert not np.any(_near(detections, u, v))
+    rows, cols = scene["ramp"]
+    in_ramp = (
+        (detections.y >= rows.start - 2)
+        & (detections.y < rows.stop + 2)
+        & (detections.x >= cols.start - 2)
+        & (detections.x < cols.stop + 2)
+    )
+    assert not np.any(in_ramp)
+    for k, (u, v) in scene["flashes"].items():
+        assert np.count_nonzero(_near(detections, u, v, 0.3) & (detections.frame == k)) == 1
+
+
+def test_a_switched_on_lamp_fades_into_the_ewma_with_time_constant_tau(
+    lamps: tuple[VideoInfo, dict],
+) -> None:
+    info, scene = lamps
+    params = TrackingParams(tau_s=0.5)
+    detections = track(info, params=params)
+    seen = np.sort(detections.frame[_near(detections, *scene["switched"])])
+    assert seen[0] == 45 and np.all(np.diff(seen) == 1)
+    # Its foreground decays as A exp(-n / (τ fps)) and stays above T while n < τ fps ln(A/T).
+    amplitude = detections.peak[_near(detections, *scene["switched"]) & (detections.frame == 45)]
+    threshold = params.threshold * 255
+    expected = math.floor(params.tau_s * FPS * math.log(amplitude[0] / threshold)) + 1
+    assert abs(len(seen) - expected) <= 1
+
+
+def test_a_switched_on_lamp_leaves_the_box_mean_after_a_fraction_of_tau(
+    lamps: tuple[VideoInfo, dict],
+) -> None:
+    info, scene = lamps
+    params = TrackingParams(tau_s=0.5, background="box")
+    detections = track(info, params=params)
+    seen = np.sort(detections.frame[_near(detections, *scene["switched"])])
+    assert seen[0] == 45 and np.all(np.diff(seen) == 1)
+    # After m frames it fills m/L of the box: foreground A (1 − m/L) > T while m < L (1 − T/A).
+    box = round(params.tau_s * FPS)
+    amplitude = detections.peak[_near(detections, *scene["switched"]) & (detections.frame == 45)]
+    expected = math.ceil(box * (1 - params.threshold * 255 / amplitude[0]))
+    assert abs(len(seen) - expected) <= 1
+
+
+# -- exact chunking --------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def flickering(tmp_path_factory: pytest.TempPathFactory) -> VideoInfo:
+    """Three chapters (40, 35, 25 frames) of random spots over a flickering background."""
+    rng = np.random.default_rng(11)
+    pictures = []
+    for k in range(100):
+        m = int(rng.integers(0, 8))
+        pictures.append(
+            vf.gaussian_spots(
+                H,
+                W,
+                rng.uniform(0, W, m),
+                rng.uniform(0, H, m),
+                rng.uniform(40, 220, m),
+                rng.uniform(0.7, 1.5),
+                BACKGROUND + 12 * math.sin(k / 6),
+            )
+        )
+    directory = tmp_path_factory.mktemp("flicker")
+    return probe_video(vf.write_chapters(directory, "cam1", pictures, [40, 35, 25], crf=20))
+
+
+CUTS = [
+    [0, 30, 60, 90, 100],  # on the EWMA block grid (15 frames)
+    [0, 17, 41, 100],  # off the grid; [17, 41) spans the chapter boundary at 40
+    [0, 40, 75, 100],  # exactly at the chapter boundaries
+    [20, 70],  # not starting at 0, ending mid-chapter
+    [33, 34, 35, 99],  # single frames
+]
+
+
+@pytest.mark.parametrize("background", ["ewma", "box"])
+@pytest.mark.parametrize("cuts", CUTS, ids=lambda c: "-".join(map(str, c)))
+def test_chunks_equal_the_unchunked_run_bit_for_bit(
+    flickering: VideoInfo, background: str, cuts: list[int]
+) -> None:
+    params = FAST.model_copy(update={"background": background})
+    whole = track(flickering, params=params, classifier=CentreBrightness())
+    assert len(whole) > 150
+    parts = [
+        track(flickering, a, b, params, classifier=CentreBrightness())
+        for a, b in itertools.pairwise(cuts)
+    ]
+    chunked = Detections.concat(parts)
+    expected = whole.select((whole.frame >= cuts[0]) & (whole.frame < cuts[-1]))
+    for name, column in expected.columns().items():
+        assert np.array_equal(getattr(chunked, name), column), name
+
+
+@pytest.mark.parametrize("background", ["ewma", "box"])
+def test_planned_chunks_reassemble_the_whole_run(flickering: VideoInfo, background: str) -> None:
+    params = FAST.model_copy(update={"background": background})
+    ranges = chunk_ranges(flickering.n_frames, flickering.fps, params, chunk_s=1.0)
+    assert ranges[0][0] == 0 and ranges[-1][1] == flickering.n_frames
+    assert all(a[1] == b[0] for a, b in itertools.pairwise(ranges))
+    whole = track(flickering, params=params)
+    chunked = Detections.concat(track(flickering, a, b, params) for a, b in ranges)
+    for name, column in whole.columns().items():
+        assert np.array_equal(getattr(chunked, name), column, equal_nan=True), name
+
+
+def test_chunk_ranges_follow_the_ewma_block_grid() -> None:
+    params = TrackingParams()  # blocks of 30 s
+    ranges = chunk_ranges(10_000, 29.97, params, chunk_s=100.0)
+    block = round(30 * 29.97)
+    assert all(start % block == 0 for start, _ in ranges)
+    assert ranges[0][1] - ranges[0][0] == 3 * block  # 100 s rounds to 3 blocks
+    assert ranges[-1][1] == 10_000
+    short = chunk_ranges(10_000, 30.0, params, chunk_s=4.0)  # below half a block: as asked
+    assert short[:2] == [(0, 120), (120, 240)] and short[-1] == (9960, 10_000)
+    box = chunk_ranges(1000, 30.0, params.model_copy(update={"background": "box"}), 10.0)
+    assert box[:2] == [(0, 300), (300, 600)] and box[-1] == (900, 1000)
+    assert chunk_ranges(0, 30.0, params) == []
+    with pytest.raises(ValueError, match="chunk_s must be positive"):
+        chunk_ranges(100, 30.0, params, chunk_s=0)
+
+
+def test_frames_read_covers_the_warm_up() -> None:
+    # EWMA: block 15 frames, warm-up 0.3 s = 9 frames before the block's start.
+    assert frames_read(30, 60, FPS, FAST) == (21, 60)
+    assert frames_read(37, 60, FPS, FAST) == (21, 60)
+    assert frames_read(5, 10, FPS, FAST) == (0, 10)
+    # Box: the 9 frames of the box before the start.
+    assert frames_read(37, 60, FPS, FAST.model_copy(update={"background": "box"})) == (28, 60)
+
+
+# -- classifier, progress, limits ------------------------------------------------------
+
+
+def test_classifier_scores_the_patch_of_each_candidate(spots: Scene) -> None:
+    classifier = CentreBrightness()
+    detections = track(spots.info, params=FAST, classifier=classifier)
+    # Patches were gathered across frames into one call (fewer than CLASSIFY_BATCH here).
+    assert len(detections) < CLASSIFY_BATCH
+    assert classifier.batch_sizes == [len(detections)]
+    assert len(np.unique(detections.frame)) > 5
+    # Row i got the score of its own patch: the grey centre pixel (BT.601 limited range).
+    frames = {f.index: f.y.copy() for f in iter_frames(spots.info)}
+    luma = np.array(
+        [
+            frames[int(k)][y, x]
+            for k, x, y in zip(detections.frame, detections.peak_x, detections.peak_y, strict=True)
+        ]
+    )
+    expected = np.clip(np.rint((luma - 16.0) * 255 / 219), 0, 255) / 255
+    assert np.abs(detections.flash_probability - expected).max() <= 2 / 255
+
+
+def test_progress_reports_every_frame_of_the_range_once(flickering: VideoInfo) -> None:
+    calls: list[int] = []
+    track(flickering, 25, 95, FAST, progress=calls.append)
+    assert sum(calls) == 70
+    assert len(calls) == math.ceil(70 / PROGRESS_EVERY)
+
+
+def test_flooded_frame_is_capped_and_counted(tmp_path: Path) -> None:
+    rng = np.random.default_rng(5)
+    pictures = [vf.gaussian_spots(H, W, [320.4], [160.6], [150.0], 1.0, BACKGROUND)] * 8
+    flood = pictures[0].copy()
+    flood[50:250, 100:500] = rng.choice([20, 255], (200, 400)).astype(np.uint8)
+    pictures = [*pictures[:5], flood, *pictures[5:]]
+    info = probe_video([vf.write_video(tmp_path / "flood.mp4", pictures, crf=8)])
+    params = FAST.model_copy(update={"max_foreground_px": 2000, "max_candidates_per_frame": 20})
+    result = track_with_stats(info, params=params)
+    in_flood = result.detections.frame == 5
+    assert np.count_nonzero(in_flood) == 20
+    assert result.stats.flooded_frames == 1
+    assert result.stats.dropped_over_cap > 0
+    assert result.stats.frames == 9 and result.stats.candidates == len(result.detections)
+
+
+def test_blobs_outside_the_area_bounds_are_dropped(tmp_path: Path) -> None:
+    big = np.full((H, W), BACKGROUND, np.uint8)
+    big[100:110, 200:210] = 230  # 100 px: a lamp-sized blob
+    small = vf.gaussian_spots(H, W, [500.2], [40.7], [200.0], 1.0, BACKGROUND)
+    pictures = [np.full((H, W), BACKGROUND, np.uint8)] * 3 + [np.maximum(big, small)]
+    info = probe_video([vf.write_video(tmp_path / "area.mp4", pictures, crf=8)])
+    result = track_with_stats(info, params=FAST.model_copy(update={"max_area": 50}))
+    assert len(result.detections) == 1
+    assert abs(result.detections.x[0] - 500.2) < 0.2
+    assert result.stats.dropped_by_area == 1
+
+
+def test_range_outside_the_video_is_refused(spots: Scene) -> None:
+    with pytest.raises(ValueError, match=r"frame range \[40, 50\) is outside"):
+        track(spots.info, 40, 50)
+
+
+def test_parameters_are_validated() -> None:
+    with pytest.raises(ValidationError, match="max_area"):
+        TrackingParams(min_area=10, max_area=5)
+    with pytest.raises(ValidationError, match="must not exceed block_s"):
+        TrackingParams(tau_s=20.0, block_s=30.0)
+    with pytest.raises(ValidationError, match="threshold"):
+        TrackingParams(threshold=1.5)
+    with pytest.raises(ValidationError, match="tau"):
+        TrackingParams(tau=2.0)  # type: ignore[call-arg]
+
+
+@pytest.mark.parametrize("background", ["ewma", "box"])
+def test_coarse_level_never_hides_a_candidate_pixel(background: str) -> None:
+    # Frames that jump between black, full white and noise make the background fall as
+    # fast as it can, the worst case for a threshold level reused across frames.
+    rng = np.random.default_rng(2)
+    shape = (8, 16)
+    threshold = TrackingParams().threshold * 255
+    if background == "ewma":
+        model = _BlockEwma(shape, FPS, FAST.model_copy(update={"block_s": 100.0}), 0)
+    else:
+        model = _BoxMean(shape, 9)
+    for k in range(300):
+        kind = rng.integers(0, 3)
+        picture = [
+            np.zeros(shape, np.uint8),
+            np.full(shape, 255, np.uint8),
+            rng.integers(0, 256, shape, dtype=np.uint8),
+        ][kind]
+        reference = model.reference(k)
+        if reference is not None:
+            image, scale = reference
+            candidate = picture - image.astype(np.float64) * scale > threshold
+            assert np.all(picture[candidate] > model.coarse_level(k, threshold)[candidate])
+        model.update(k, picture)

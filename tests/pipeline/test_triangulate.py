@@ -1,0 +1,170 @@
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from pipeline.detections import Detections
+from pipeline.geometry import Pose, bearing_to_pixel
+from pipeline.triangulate import (
+    Points3D,
+    TriangulationParams,
+    candidate_pairs,
+    triangulate,
+    validate_separation,
+)
+
+WIDTH = 640
+SEPARATION = 1.5
+POSE = Pose(Rotation.from_rotvec(np.radians([0.5, -1.0, 2.0])).as_matrix(), [0.1, 1.0, 0.02])
+
+
+def detections_of(points: np.ndarray, frames: np.ndarray, camera: int) -> Detections:
+    """Exact detections of world points (metres) by camera 1 or camera 2."""
+    seen = points if camera == 1 else POSE.world_to_camera2(points, SEPARATION)
+    u, v = bearing_to_pixel(seen, WIDTH)
+    return Detections.from_columns(frames, u, v)
+
+
+def random_points(rng: np.random.Generator, n: int, near: float = 2.0, far: float = 15.0):
+    direction = rng.normal(size=(n, 3))
+    direction[:, 2] = np.abs(direction[:, 2])  # above the horizon, like fireflies in view
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    return rng.uniform(near, far, (n, 1)) * direction
+
+
+def test_exact_points_recovered_at_scale() -> None:
+    rng = np.random.default_rng(0)
+    points = random_points(rng, 300)
+    frames = np.arange(300)
+    result = triangulate(
+        detections_of(points, frames, 1),
+        detections_of(points, frames, 2),
+        0,
+        POSE,
+        WIDTH,
+        SEPARATION,
+    )
+    assert len(result) == 300
+    np.testing.assert_array_equal(result.index1, result.index2)
+    np.testing.assert_allclose(result.xyz, points[result.index1], atol=1e-6)
+    np.testing.assert_allclose(result.range_m, np.linalg.norm(result.xyz, axis=1))
+    assert result.gap_m.max() < 1e-6
+    np.testing.assert_array_equal(result.frame, frames)
+
+
+def test_several_flashes_per_frame_matched_with_negative_delay() -> None:
+    rng = np.random.default_rng(1)
+    n_frames, per_frame, delay = 200, 4, -7
+    frames = np.repeat(np.arange(n_frames), per_frame)
+    points = random_points(rng, len(frames))
+    det1 = detections_of(points, frames, 1)
+    # Camera 2 lists its detections in another order; frames before its start are lost.
+    shuffle = rng.permutation(len(frames))
+    shuffle = shuffle[frames[shuffle] + delay >= 0]
+    det2 = detections_of(points[shuffle], frames[shuffle] + delay, 2)
+    result = triangulate(det1, det2, delay, POSE, WIDTH, SEPARATION)
+    # Row j of camera 2 shows world point shuffle[j].
+    np.testing.assert_array_equal(shuffle[result.index2], result.index1)
+    # Every flash of every frame both cameras saw, and only those.
+    assert len(result) == np.sum(frames + delay >= 0)
+    assert result.frame.min() == -delay
+    assert np.all(np.diff(result.frame) >= 0)
+    np.testing.assert_allclose(result.xyz, points[result.index1], atol=1e-6)
+
+
+def test_frames_seen_by_one_camera_only_yield_nothing() -> None:
+    rng = np.random.default_rng(2)
+    points = random_points(rng, 6)
+    det1 = detections_of(points, np.array([0, 1, 2, 3, 4, 5]), 1)
+    det2 = detections_of(points[[0, 2, 5]], np.array([0, 2, 5]), 2)
+    result = triangulate(det1, det2, 0, POSE, WIDTH, SEPARATION)
+    np.testing.assert_array_equal(result.frame, [0, 2, 5])
+    np.testing.assert_array_equal(result.index1, [0, 2, 5])
+    np.testing.assert_array_equal(result.index2, [0, 1, 2])
+
+
+def test_gate_refuses_rays_that_miss() -> None:
+    rng = np.random.default_rng(3)
+    points = random_points(rng, 2, near=4.0, far=6.0)
+    det1 = detections_of(points, np.array([0, 1]), 1)
+    # Camera 2 sees in frame 1 a flash moved 0.5 m (1/3 separation) out of its epipolar
+    # plane, plus an extra flash of its own in frame 0 that must not steal the true match.
+    shifted = points.copy()
+    normal = np.cross(POSE.translation, points[1])
+    shifted[1] += 0.5 * normal / np.linalg.norm(normal)
+    extra = points[0] + [0.0, 0.0, 2.0]
+    det2 = detections_of(np.vstack([extra, points[0], shifted[1]]), np.array([0, 0, 1]), 2)
+    result = triangulate(det1, det2, 0, POSE, WIDTH, SEPARATION)
+    np.testing.assert_array_equal(result.index2, [1])
+    loose = triangulate(det1, det2, 0, POSE, WIDTH, SEPARATION, TriangulationParams(gate=0.5))
+    np.testing.assert_array_equal(loose.index2, [1, 2])
+    assert 0.2 * SEPARATION < loose.gap_m[1] < 0.5 * SEPARATION
+
+
+def test_max_range_and_points_behind_cameras_are_dropped() -> None:
+    rng = np.random.default_rng(4)
+    near = random_points(rng, 3, near=3.0, far=10.0)
+    far = random_points(rng, 2, near=25.0, far=30.0)
+    points = np.vstack([near, far])
+    frames = np.arange(5)
+    det1 = detections_of(points, frames, 1)
+    det2 = detections_of(points, frames, 2)
+    result = triangulate(det1, det2, 0, POSE, WIDTH, SEPARATION)
+    np.testing.assert_array_equal(result.index1, [0, 1, 2])
+    wide = triangulate(det1, det2, 0, POSE, WIDTH, SEPARATION, TriangulationParams(max_range_m=40))
+    np.testing.assert_array_equal(wide.index1, [0, 1, 2, 3, 4])
+    # Rays that meet only behind both cameras: camera 1 looks away from the point.
+    behind = Detections.from_columns([0], *bearing_to_pixel(-near[:1], WIDTH))
+    away = POSE.world_to_camera2(near[:1], SEPARATION)
+    behind2 = Detections.from_columns([0], *bearing_to_pixel(-away, WIDTH))
+    assert len(triangulate(behind, behind2, 0, POSE, WIDTH, SEPARATION)) == 0
+
+
+def test_candidate_pairs_blocks() -> None:
+    pairs = candidate_pairs(np.array([5, 3, 5, 9]), np.array([5, 5, 3, 7, 5]))
+    np.testing.assert_array_equal(pairs.frame, [3, 5])
+    np.testing.assert_array_equal(pairs.n1, [1, 2])
+    np.testing.assert_array_equal(pairs.n2, [1, 3])
+    np.testing.assert_array_equal(pairs.start, [0, 1])
+    np.testing.assert_array_equal(pairs.index1, [1, 0, 0, 0, 2, 2, 2])
+    np.testing.assert_array_equal(pairs.index2, [2, 0, 1, 4, 0, 1, 4])
+
+
+def test_empty_inputs_and_select() -> None:
+    det = Detections.empty()
+    result = triangulate(det, det, 0, POSE, WIDTH, SEPARATION)
+    assert len(result) == 0 and result.xyz.shape == (0, 3)
+    rng = np.random.default_rng(5)
+    points = random_points(rng, 4)
+    full = triangulate(
+        detections_of(points, np.arange(4), 1),
+        detections_of(points, np.arange(4), 2),
+        0,
+        POSE,
+        WIDTH,
+        SEPARATION,
+    )
+    part = full.select(full.range_m > np.median(full.range_m))
+    assert isinstance(part, Points3D) and len(part) == 2
+    np.testing.assert_allclose(part.xyz, points[part.index1], atol=1e-6)
+
+
+@pytest.mark.parametrize("separation", [0.0, -1.5, float("nan"), float("inf"), 150.0])
+def test_absurd_separation_refused(separation: float) -> None:
+    with pytest.raises(ValueError, match="camera separation"):
+        validate_separation(separation)
+    det = Detections.empty()
+    with pytest.raises(ValueError, match="camera separation"):
+        triangulate(det, det, 0, POSE, WIDTH, separation)
+
+
+def test_assignment_with_several_flashes_respects_gate() -> None:
+    rng = np.random.default_rng(6)
+    a, b, c = random_points(rng, 3, near=3.0, far=12.0)
+    # Both cameras see two flashes in frame 4, but only A is common; B and C are each
+    # seen by one camera (occlusion), so B–C must stay unmatched.
+    det1 = detections_of(np.array([b, a]), np.array([4, 4]), 1)
+    det2 = detections_of(np.array([a, c]), np.array([4, 4]), 2)
+    result = triangulate(det1, det2, 0, POSE, WIDTH, SEPARATION)
+    np.testing.assert_array_equal(result.index1, [1])
+    np.testing.assert_array_equal(result.index2, [0])
+    np.testing.assert_allclose(result.xyz, [a], atol=1e-6)

@@ -1,0 +1,67 @@
+"""The admin page in headless Chromium: failed jobs listed, re-run from a chosen stage."""
+
+from __future__ import annotations
+
+import uuid
+
+from playwright.sync_api import Browser
+
+from services.core.db import transaction
+from services.core.models import Job
+from services.core.workflow import static_stages, stop_job, track_stages
+from tests.services.api.test_pages import browser  # noqa: F401  (the fixture)
+from tests.services.conftest import LiveServer, Service
+from tests.services.helpers import TEST_ADMIN_TOKEN, auth, create_night, make_team
+
+FILES = [
+    {"camera": c, "chapter": 0, "filename": f"cam{c}.mp4", "size": 10, "sha256": "e" * 64}
+    for c in (1, 2)
+]
+
+
+def failed_job(service: Service) -> str:
+    """An uploaded job whose sync stage failed (no worker consumes this service's queue)."""
+    token = make_team(service.sessions)
+    night = create_night(service.client, token)
+    job = service.client.post(
+        "/api/v1/jobs", json={"night_id": night["id"], "files": FILES}, headers=auth(token)
+    ).json()
+    with transaction(service.sessions) as session:
+        row = session.get_one(Job, uuid.UUID(job["id"]))
+        for file in row.files:
+            file.upload_state = "uploaded"
+        row.stages = static_stages() + track_stages([(1, 0, 600), (2, 0, 600)])
+        for stage in row.stages:
+            stage.status = "succeeded" if stage.name in ("probe", "track", "merge") else "pending"
+        row.status = "running"
+        next(s for s in row.stages if s.name == "sync").status = "failed"
+        stop_job(row, "failed", "sync failed: no flash seen by both cameras")
+    return str(job["id"])
+
+
+def test_admin_page_reruns_a_failed_job(api_service: Service, browser: Browser) -> None:  # noqa: F811
+    job_id = failed_job(api_service)
+    page = browser.new_page()
+    with LiveServer(api_service) as server:
+        page.goto(f"{server.url}/admin")
+        page.fill("#admin-token", TEST_ADMIN_TOKEN)
+        page.click("#load")
+        row = page.locator(f'tr[data-job="{job_id}"]')
+        row.wait_for()
+        assert "sync failed: no flash seen by both cameras" in row.inner_text()
+        row.locator("select").select_option("pose")  # sync failed: too late, refused
+        row.locator("button").click()
+        page.wait_for_selector("#admin-status:has-text('stage sync of job')")
+        row.locator("select").select_option("")  # default: the first unfinished stage
+        row.locator("button").click()
+        page.wait_for_selector(f"#admin-status:has-text('job {job_id} re-queued from sync')")
+        assert page.locator(f'tr[data-job="{job_id}"]').count() == 0  # no longer failed
+    page.close()
+    job = api_service.client.get(f"/api/v1/jobs/{job_id}", headers=auth(TEST_ADMIN_TOKEN)).json()
+    assert job["status"] == "queued" and job["error"] is None
+    statuses = {s["name"]: s["status"] for s in job["stages"]}
+    assert (statuses["merge"], statuses["sync"], statuses["pose"]) == (
+        "succeeded",
+        "queued",
+        "pending",
+    )

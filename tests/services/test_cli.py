@@ -1,0 +1,86 @@
+"""``firefly3d admin create-team``: the token is printed once and only its hash is stored."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+import uuid
+from pathlib import Path
+
+import httpx
+from sqlalchemy import select
+
+from services.core.db import SessionFactory
+from services.core.models import Team
+from services.core.security import hash_token
+from tests.services.conftest import Service, free_port
+from tests.services.helpers import auth, create_night
+
+FIREFLY3D = str(Path(sys.executable).with_name("firefly3d"))
+
+
+def run_cli(database_url: str, *args: str) -> subprocess.CompletedProcess[str]:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("FIREFLY3D_")}
+    env["FIREFLY3D_DATABASE_URL"] = database_url
+    return subprocess.run([FIREFLY3D, *args], env=env, capture_output=True, text=True, check=False)
+
+
+def test_create_team_prints_a_working_token_once(
+    database_url: str, sessions: SessionFactory, api_service: Service
+) -> None:
+    name = f"Fireflies of {uuid.uuid4().hex[:6]}"
+    result = run_cli(database_url, "admin", "create-team", name)
+    assert result.returncode == 0, result.stderr
+    token = result.stdout.strip()
+    assert token.startswith("ff3d_") and "cannot be shown again" in result.stderr
+    with sessions() as session:
+        team = session.scalars(select(Team).where(Team.name == name)).one()
+        assert team.token_hash == hash_token(token)
+        assert token not in {team.name, team.token_hash}
+    night = create_night(api_service.client, token)
+    assert (
+        api_service.client.get(f"/api/v1/nights/{night['id']}", headers=auth(token)).status_code
+        == 200
+    )
+
+    duplicate = run_cli(database_url, "admin", "create-team", name)
+    assert duplicate.returncode == 1
+    assert duplicate.stdout == "" and f"team {name!r} already exists" in duplicate.stderr
+
+
+def test_service_commands_are_registered() -> None:
+    result = subprocess.run([FIREFLY3D, "--help"], capture_output=True, text=True, check=True)
+    for command in ("admin", "serve", "worker"):
+        assert f"    {command} " in result.stdout
+    worker = subprocess.run(
+        [FIREFLY3D, "worker", "--help"], capture_output=True, text=True, check=True
+    )
+    assert "--concurrency" in worker.stdout and "--queues" in worker.stdout
+
+
+def test_serve_starts_the_api(database_url: str) -> None:
+    port = free_port()
+    env = {k: v for k, v in os.environ.items() if not k.startswith("FIREFLY3D_")}
+    env["FIREFLY3D_DATABASE_URL"] = database_url
+    server = subprocess.Popen(
+        [FIREFLY3D, "serve", "--port", str(port)],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                response = httpx.get(f"http://127.0.0.1:{port}/healthz")
+                break
+            except httpx.TransportError:
+                assert time.monotonic() < deadline and server.poll() is None, "serve did not start"
+                time.sleep(0.2)
+        assert response.json() == {"status": "ok"}
+        assert httpx.get(f"http://127.0.0.1:{port}/").text.count('type="file"') == 2
+    finally:
+        server.terminate()
+        server.wait(timeout=30)
