@@ -87,7 +87,9 @@ def _params_from_args(args: argparse.Namespace) -> ProcessParams:
         "sync": {"max_delay_s": args.max_delay},
     }
     if getattr(args, "no_classifier", False):
+        # The background-subtraction-only baseline: no patch classifier, no flicker test.
         cli["classifier"]["enabled"] = False
+        cli["flicker"] = {"enabled": False}
     for section, values in cli.items():
         chosen = {k: v for k, v in values.items() if v is not None}
         if chosen:

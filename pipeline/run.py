@@ -39,6 +39,7 @@ from pipeline.artifacts import (
 )
 from pipeline.classify import FlashClassifier
 from pipeline.detections import Detections
+from pipeline.flicker import FlickerParams, flickering
 from pipeline.pose import PoseParams, calibration_pairs, estimate_pose
 from pipeline.results import (
     Calibration,
@@ -84,6 +85,7 @@ class ProcessParams(BaseModel):
     pose: PoseParams = PoseParams()
     triangulation: TriangulationParams = TriangulationParams()
     linking: LinkingParams = LinkingParams()
+    flicker: FlickerParams = FlickerParams()
     chunk_s: float = Field(60.0, gt=0, description="Length of a tracking chunk, seconds.")
 
     def merged(self, overrides: Mapping[str, Any]) -> Self:
@@ -265,10 +267,11 @@ def track_chunk_stage(
 
 
 def merge_stage(workdir: Path, camera: int, params: ProcessParams) -> StageResult:
-    """Concatenate a camera's chunks and keep the candidates the classifier accepts.
+    """Concatenate a camera's chunks and keep the candidates that are flashes.
 
-    Writes every candidate (``candidates_cam<c>.npz``) and the accepted ones
-    (``flashes_cam<c>.csv``). Without a classifier every candidate is accepted.
+    A candidate is accepted if the classifier accepts it (always, without one) and it
+    does not sit on a flickering spot (`pipeline.flicker`). Writes every candidate
+    (``candidates_cam<c>.npz``) and the accepted ones (``flashes_cam<c>.csv``).
     """
     started = time.perf_counter()
     ranges = camera_chunks(workdir, params, camera)
@@ -285,11 +288,12 @@ def merge_stage(workdir: Path, camera: int, params: ProcessParams) -> StageResul
         Detections.from_npz(workdir / chunk_name(camera, a, b)) for a, b in ranges
     ).sorted()
     threshold = accept_threshold(params.classifier)
-    accepted = (
-        candidates
-        if threshold is None
-        else candidates.select(candidates.flash_probability >= threshold)
+    probe = StereoProbe.load(workdir)
+    flicker = flickering(
+        candidates.frame, candidates.x, candidates.y, probe.width, probe.fps, params.flicker
     )
+    keep = ~flicker if threshold is None else ~flicker & (candidates.flash_probability >= threshold)
+    accepted = candidates.select(keep)
     candidates.to_npz(workdir / candidates_name(camera))
     accepted.to_csv(workdir / flashes_name(camera))
     chunk_seconds = [
@@ -301,6 +305,7 @@ def merge_stage(workdir: Path, camera: int, params: ProcessParams) -> StageResul
         "camera": camera,
         "n_chunks": len(ranges),
         "n_candidates": len(candidates),
+        "n_flickering": int(flicker.sum()),
         "n_accepted": len(accepted),
         "threshold": threshold,
         "tracking_seconds": float(sum(chunk_seconds)),

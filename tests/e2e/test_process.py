@@ -126,7 +126,14 @@ def test_chunked_tracking_gives_the_same_results(simulated, tmp_path) -> None:
         a = Detections.from_npz(whole / artifacts.candidates_name(camera))
         b = Detections.from_npz(chunked / artifacts.candidates_name(camera))
         for name, column in a.columns().items():
-            np.testing.assert_array_equal(getattr(b, name), column, err_msg=name)
+            if name == "flash_probability":
+                # onnxruntime blocks GEMM rows by 4, so a patch's score can move by one
+                # float32 ulp with its position in a batch; tracking itself is exact.
+                np.testing.assert_allclose(b.flash_probability, column, rtol=0, atol=1e-6)
+            else:
+                np.testing.assert_array_equal(getattr(b, name), column, err_msg=name)
+        flashes = artifacts.flashes_name(camera)
+        assert (whole / flashes).read_text() == (chunked / flashes).read_text()
     assert (whole / "trajectories.csv").read_text() == (chunked / "trajectories.csv").read_text()
 
 

@@ -8,6 +8,7 @@ from pipeline.triangulate import (
     Points3D,
     TriangulationParams,
     candidate_pairs,
+    parallax,
     triangulate,
     validate_separation,
 )
@@ -15,6 +16,9 @@ from pipeline.triangulate import (
 WIDTH = 640
 SEPARATION = 1.5
 POSE = Pose(Rotation.from_rotvec(np.radians([0.5, -1.0, 2.0])).as_matrix(), [0.1, 1.0, 0.02])
+# Noise-free points anywhere around the rig: some lie near the baseline axis, where the
+# default parallax cut (for real, noisy detections) would drop them.
+EXACT = TriangulationParams(min_parallax_px=0.0)
 
 
 def detections_of(points: np.ndarray, frames: np.ndarray, camera: int) -> Detections:
@@ -42,6 +46,7 @@ def test_exact_points_recovered_at_scale() -> None:
         POSE,
         WIDTH,
         SEPARATION,
+        EXACT,
     )
     assert len(result) == 300
     np.testing.assert_array_equal(result.index1, result.index2)
@@ -61,7 +66,7 @@ def test_several_flashes_per_frame_matched_with_negative_delay() -> None:
     shuffle = rng.permutation(len(frames))
     shuffle = shuffle[frames[shuffle] + delay >= 0]
     det2 = detections_of(points[shuffle], frames[shuffle] + delay, 2)
-    result = triangulate(det1, det2, delay, POSE, WIDTH, SEPARATION)
+    result = triangulate(det1, det2, delay, POSE, WIDTH, SEPARATION, EXACT)
     # Row j of camera 2 shows world point shuffle[j].
     np.testing.assert_array_equal(shuffle[result.index2], result.index1)
     # Every flash of every frame both cameras saw, and only those.
@@ -95,7 +100,8 @@ def test_gate_refuses_rays_that_miss() -> None:
     det2 = detections_of(np.vstack([extra, points[0], shifted[1]]), np.array([0, 0, 1]), 2)
     result = triangulate(det1, det2, 0, POSE, WIDTH, SEPARATION)
     np.testing.assert_array_equal(result.index2, [1])
-    loose = triangulate(det1, det2, 0, POSE, WIDTH, SEPARATION, TriangulationParams(gate=0.5))
+    loose_params = TriangulationParams(gate=0.5, max_gap_deg=20.0)
+    loose = triangulate(det1, det2, 0, POSE, WIDTH, SEPARATION, loose_params)
     np.testing.assert_array_equal(loose.index2, [1, 2])
     assert 0.2 * SEPARATION < loose.gap_m[1] < 0.5 * SEPARATION
 
@@ -117,6 +123,43 @@ def test_max_range_and_points_behind_cameras_are_dropped() -> None:
     away = POSE.world_to_camera2(near[:1], SEPARATION)
     behind2 = Detections.from_columns([0], *bearing_to_pixel(-away, WIDTH))
     assert len(triangulate(behind, behind2, 0, POSE, WIDTH, SEPARATION)) == 0
+
+
+def test_angular_gate_refuses_near_mismatches_the_gate_allows() -> None:
+    # 40 cm from camera 1, a flash moved 10 cm (1/15 separation, well inside the 0.2
+    # gate) out of its epipolar plane: a ~14 degree inconsistency, not a match.
+    point = np.array([[0.4, 0.0, 0.1]])
+    normal = np.cross(POSE.translation, point[0])
+    shifted = point + 0.1 * normal / np.linalg.norm(normal)
+    det1 = detections_of(point, np.array([0]), 1)
+    det2 = detections_of(shifted, np.array([0]), 2)
+    assert len(triangulate(det1, det2, 0, POSE, WIDTH, SEPARATION)) == 0
+    lenient = TriangulationParams(max_gap_deg=30.0)
+    (gap,) = triangulate(det1, det2, 0, POSE, WIDTH, SEPARATION, lenient).gap_m
+    assert gap < 0.2 * SEPARATION
+
+
+def test_points_near_the_baseline_axis_are_dropped() -> None:
+    # Along the baseline the two rays are nearly parallel: depth is unobservable.
+    axis = POSE.translation / np.linalg.norm(POSE.translation)
+    on_axis = 8.0 * axis + [0.0, 0.0, 0.05]
+    broadside = 8.0 * np.cross(axis, [0.0, 0.0, 1.0]) + [0.0, 0.0, 1.0]
+    points = np.vstack([on_axis, broadside])
+    frames = np.arange(2)
+    det1, det2 = detections_of(points, frames, 1), detections_of(points, frames, 2)
+    np.testing.assert_array_equal(triangulate(det1, det2, 0, POSE, WIDTH, SEPARATION).index1, [1])
+    keep_all = TriangulationParams(min_parallax_px=0.0)
+    np.testing.assert_array_equal(
+        triangulate(det1, det2, 0, POSE, WIDTH, SEPARATION, keep_all).index1, [0, 1]
+    )
+
+
+def test_parallax_is_the_angle_the_baseline_subtends() -> None:
+    pose = Pose(np.eye(3), [0.0, 1.0, 0.0])
+    distance = np.array([0.5, 2.0, 10.0])
+    broadside = np.column_stack([distance, np.full(3, 0.5), np.zeros(3)])
+    np.testing.assert_allclose(parallax(broadside, pose), 2 * np.arctan(0.5 / distance))
+    np.testing.assert_allclose(parallax(np.array([[0.0, 5.0, 0.0]]), pose), [0.0], atol=1e-12)
 
 
 def test_candidate_pairs_blocks() -> None:

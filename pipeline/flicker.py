@@ -1,0 +1,109 @@
+"""Flicker suppression: a spot that lights up in most frames is not a firefly.
+
+A firefly flash lasts 3–6 frames at 60 fps and the insect moves between flashes, so
+even a synchronous species flashing in bursts (flash ~0.1 s every ~0.5 s) lights one
+direction in at most ~20% of the frames of a two-second window. Moonlight or a lamp
+seen through wind-shaken leaves, a twinkling reflection, or a leaf edge against the
+sky keeps re-appearing at the same bearing in a large fraction of frames. Such sources
+can pass a patch classifier, which sees one frame only (a crescent of moon peeking past
+a leaf looks like a flash), so this temporal test complements it.
+
+The *duty* of a candidate is the number of candidates (its own included) within
+``radius_deg`` of its pixel, horizontally wrapping across the 360° seam, in the
+``window_s`` centred on its frame, divided by the frames in that window.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field
+from scipy.spatial import cKDTree
+
+
+class FlickerParams(BaseModel):
+    """Where the line between a flash train and a flickering light source is drawn."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    enabled: bool = Field(True, description="Reject candidates at flickering spots.")
+    radius_deg: float = Field(
+        1.5, gt=0, le=20, description="Neighbourhood radius (Chebyshev, in pixels of this angle)."
+    )
+    window_s: float = Field(2.0, gt=0, description="Length of the centred time window, seconds.")
+    max_duty: float = Field(
+        0.4,
+        gt=0,
+        le=1,
+        description="Candidates per frame in the neighbourhood above which a spot flickers "
+        "(flash trains measure <= 0.25; moon-through-leaves 0.5–0.9 in the simulator).",
+    )
+
+
+def flicker_duty(
+    frame: NDArray[np.integer],
+    x: NDArray[np.floating],
+    y: NDArray[np.floating],
+    width: int,
+    fps: float,
+    radius_deg: float = 1.5,
+    window_s: float = 2.0,
+) -> NDArray[np.float64]:
+    """How often each candidate's spot lights up around its frame.
+
+    Parameters
+    ----------
+    frame
+        (N,) 0-based frame index of each candidate.
+    x, y
+        (N,) pixel coordinates (DESIGN.md convention), ``0 <= x < width``.
+    width
+        Frame width in pixels; 360° of azimuth, so ``x`` wraps with this period.
+    fps
+        Frames per second.
+    radius_deg
+        Half side of the square neighbourhood, in degrees (``width / 360`` px per degree).
+    window_s
+        Length of the time window centred on each candidate's frame, in seconds.
+
+    Returns
+    -------
+    (N,) candidates per frame in each candidate's space-time neighbourhood, counting
+    itself; 1.0 means a candidate within the radius in every frame of the window.
+    """
+    n = len(frame)
+    if n == 0:
+        return np.zeros(0)
+    radius_px = radius_deg * width / 360.0
+    half = max(1, round(window_s * fps / 2))
+    # Scaled so the neighbourhood is the unit Chebyshev ball; x is periodic (the seam),
+    # frame and y get boxes wider than their range plus the radius so they never wrap.
+    t = np.asarray(frame, dtype=np.float64) / half
+    period = width / radius_px
+    u = np.minimum(
+        np.mod(np.asarray(x, dtype=np.float64), width) / radius_px, np.nextafter(period, 0)
+    )
+    v = np.asarray(y, dtype=np.float64) / radius_px
+    v = v - v.min()
+    box = [t.max() + 2.0, period, v.max() + 2.0]
+    tree = cKDTree(np.column_stack([t, u, v]), boxsize=box)
+    counts = tree.query_ball_point(tree.data, r=1.0, p=np.inf, return_length=True)
+    return np.asarray(counts, dtype=np.float64) / (2 * half + 1)
+
+
+def flickering(
+    frame: NDArray[np.integer],
+    x: NDArray[np.floating],
+    y: NDArray[np.floating],
+    width: int,
+    fps: float,
+    params: FlickerParams,
+) -> NDArray[np.bool_]:
+    """(N,) True where a candidate sits on a flickering spot (see `flicker_duty`).
+
+    All False when ``params.enabled`` is false.
+    """
+    if not params.enabled:
+        return np.zeros(len(frame), dtype=bool)
+    duty = flicker_duty(frame, x, y, width, fps, params.radius_deg, params.window_s)
+    return duty > params.max_duty
