@@ -162,7 +162,6 @@ def triangulate(
     )
     range_m = np.linalg.norm(rays.midpoint, axis=-1) * separation_m
     gap_deg = np.degrees(rays.gap / np.maximum(np.maximum(rays.r1, rays.r2), 1e-12))
-    parallax_px = np.degrees(parallax(rays.midpoint, pose)) * width / 360.0
     # Impossible matches (behind a camera, out of range, inconsistent directions) must
     # not take a flash from a possible one, so they are excluded before the assignment.
     possible = (
@@ -174,7 +173,8 @@ def triangulate(
     chosen = assign(pairs, np.where(possible, rays.gap, np.inf), params.gate)
     # Ill-conditioned points are dropped after the assignment: their match is right,
     # only their depth is not, so they must still keep the flash from other matches.
-    chosen = chosen[parallax_px[chosen] >= params.min_parallax_px]
+    parallax_px = np.degrees(parallax(rays.midpoint[chosen], pose)) * width / 360.0
+    chosen = chosen[parallax_px >= params.min_parallax_px]
     return Points3D(
         xyz=rays.midpoint[chosen] * separation_m,
         frame=det1.frame[i1[chosen]],
