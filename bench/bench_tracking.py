@@ -38,8 +38,10 @@ import av
 import cv2
 import numpy as np
 
-from pipeline.tracking import PatchClassifier, TrackingParams, track
-from pipeline.video import VideoInfo, iter_frames, probe_video
+from pipeline.params import TrackingParams
+from pipeline.probe import VideoInfo
+from pipeline.tracking import PatchClassifier, track
+from pipeline.video import iter_frames, probe_video
 
 
 def make_recording(width: int, seconds: float, fps: int = 30) -> Path:

@@ -3,6 +3,9 @@
 The CONTRACT result files sit at the top of the folder; intermediates that stages pass
 to each other live under ``work/``. Names are deterministic per stage (and per camera
 and frame range for tracking), so re-running a stage overwrites exactly its outputs.
+
+Names that vary are templates with ``{camera}``, ``{start}`` and ``{stop}`` fields: the
+stage graph (`pipeline.graph`) declares what each stage reads and writes with them.
 """
 
 from __future__ import annotations
@@ -19,28 +22,21 @@ REPORT_DIR = "report"
 SUMMARY_JSON = "report/summary.json"
 METRICS_DIR = "work/metrics"
 
-
-def chunk_name(camera: int, start: int, stop: int) -> str:
-    """Detections of all candidates of one tracked frame range."""
-    return f"work/tracking/cam{camera}/{start:08d}-{stop:08d}.npz"
-
-
-def chunk_metrics_name(camera: int, start: int, stop: int) -> str:
-    """Timing and counts of one tracked frame range."""
-    return f"work/tracking/cam{camera}/{start:08d}-{stop:08d}.json"
+#: Detections of all candidates of one tracked frame range.
+CHUNK_NPZ = "work/tracking/cam{camera}/{start:08d}-{stop:08d}.npz"
+#: Metrics of one tracked frame range.
+CHUNK_METRICS_JSON = "work/tracking/cam{camera}/{start:08d}-{stop:08d}.json"
+#: Every candidate blob of a camera, with its flash probability.
+CANDIDATES_NPZ = "work/candidates_cam{camera}.npz"
+#: Accepted detections of a camera (CONTRACT file).
+FLASHES_CSV = "flashes_cam{camera}.csv"
 
 
 def candidates_name(camera: int) -> str:
     """Every candidate blob of a camera, with its flash probability."""
-    return f"work/candidates_cam{camera}.npz"
+    return CANDIDATES_NPZ.format(camera=camera)
 
 
 def flashes_name(camera: int) -> str:
     """Accepted detections of a camera (CONTRACT file)."""
-    return f"flashes_cam{camera}.csv"
-
-
-def metrics_name(stage: str, camera: int | None = None) -> str:
-    """Metrics and warnings a stage recorded (per camera for merge)."""
-    suffix = "" if camera is None else f"_cam{camera}"
-    return f"{METRICS_DIR}/{stage}{suffix}.json"
+    return FLASHES_CSV.format(camera=camera)

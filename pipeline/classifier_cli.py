@@ -9,25 +9,14 @@ import shlex
 import sys
 from collections.abc import Iterator, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
 from tqdm import tqdm
 
-from pipeline.classify import (
-    DEFAULT_BATCH,
-    FlashClassifier,
-    center_crop_or_pad,
-    default_model_path,
-)
-from pipeline.training.dataset import PatchSet, find_images, load_patch_folder, read_rgb
-from pipeline.training.evaluation import (
-    Predictions,
-    baseline_predictions,
-    compare,
-    format_comparison,
-    reference_predictions,
-)
-from pipeline.training.splits import grouped_folds
+if TYPE_CHECKING:  # the handlers import the classifier and the training code when they run
+    import numpy as np
+
+    from pipeline.classify import FlashClassifier
 
 CHUNK = 4096  # images read per inference round in `classify`
 REFERENCE_HELP = (
@@ -108,7 +97,9 @@ def _register_classify(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--model", type=Path, default=None, help="ONNX model (default: shipped)")
     p.add_argument("--card", type=Path, default=None, help="model card (default: beside)")
     p.add_argument("--out", type=Path, required=True, metavar="scores.csv")
-    p.add_argument("--batch-size", type=int, default=DEFAULT_BATCH)
+    p.add_argument(
+        "--batch-size", type=int, help="patches per inference call (default: the runtime's)"
+    )
     p.set_defaults(func=_classify)
 
 
@@ -142,6 +133,9 @@ def _register_simulate_patches(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _train(args: argparse.Namespace) -> int:
+    from pipeline.classify import FlashClassifier
+    from pipeline.training.dataset import load_patch_folder
+
     try:
         from pipeline.training.trainer import TrainConfig
         from pipeline.training.workflow import train_classifier
@@ -209,6 +203,19 @@ def _train_command(args: argparse.Namespace) -> str:
 
 
 def _evaluate(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from pipeline.classify import FlashClassifier, default_model_path
+    from pipeline.training.dataset import PatchSet, load_patch_folder
+    from pipeline.training.evaluation import (
+        Predictions,
+        baseline_predictions,
+        compare,
+        format_comparison,
+        reference_predictions,
+    )
+    from pipeline.training.splits import grouped_folds
+
     try:
         classifier = FlashClassifier.load(args.model, args.card)
         parts = [load_patch_folder(d) for d in args.data]
@@ -269,8 +276,11 @@ def _simulate_patches(args: argparse.Namespace) -> int:
 
 
 def _classify(args: argparse.Namespace) -> int:
+    from pipeline.classify import DEFAULT_BATCH, FlashClassifier
+
     try:
-        classifier = FlashClassifier.load(args.model, args.card, batch_size=args.batch_size)
+        batch_size = args.batch_size or DEFAULT_BATCH
+        classifier = FlashClassifier.load(args.model, args.card, batch_size=batch_size)
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
@@ -297,6 +307,8 @@ def _classify(args: argparse.Namespace) -> int:
 
 
 def _image_files(paths: Sequence[Path]) -> Iterator[Path]:
+    from pipeline.training.dataset import find_images
+
     for path in paths:
         if not path.exists():
             print(f"skipped {path}: no such file or folder", file=sys.stderr)
@@ -306,6 +318,11 @@ def _image_files(paths: Sequence[Path]) -> Iterator[Path]:
 
 def _read_patches(files: Sequence[Path], size: int) -> tuple[list[str], np.ndarray]:
     """Readable images among ``files``, cropped/padded to ``size``; reports the others."""
+    import numpy as np
+
+    from pipeline.classify import center_crop_or_pad
+    from pipeline.training.dataset import read_rgb
+
     names, patches = [], []
     for path in files:
         image = read_rgb(path)

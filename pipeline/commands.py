@@ -17,7 +17,8 @@ from tqdm import tqdm
 from pipeline import artifacts
 
 if TYPE_CHECKING:  # the stages load models and libraries: import them when a command runs
-    from pipeline.run import ProcessParams, RunOutcome, RunProgress
+    from pipeline.params import ProcessParams
+    from pipeline.run import RunOutcome, RunProgress
     from pipeline.simulate import SimulatedRecording, SimulationConfig
 
 #: Errors that mean "bad input": reported in one line, exit status 1, no traceback.
@@ -72,7 +73,7 @@ def _add_parameter_options(parser: argparse.ArgumentParser, *, tracking: bool) -
 
 
 def _params_from_args(args: argparse.Namespace) -> ProcessParams:
-    from pipeline.run import ProcessParams
+    from pipeline.params import ProcessParams
 
     overrides: dict[str, Any] = {}
     if args.params:
@@ -95,6 +96,21 @@ def _params_from_args(args: argparse.Namespace) -> ProcessParams:
         if chosen:
             overrides.setdefault(section, {}).update(chosen)
     return ProcessParams().merged(overrides)
+
+
+class _RenamedOption(argparse.Action):
+    """An option that was renamed: using it is an error that names the new spelling."""
+
+    def __init__(self, option_strings: list[str], dest: str, new: str, **kwargs: Any) -> None:
+        super().__init__(option_strings, dest, nargs="?", help=argparse.SUPPRESS, **kwargs)
+        self.new = new
+
+    def __call__(self, parser: argparse.ArgumentParser, *_: Any, **__: Any) -> None:
+        parser.error(f"{self.option_strings[0]} was renamed {self.new}")
+
+
+def _renamed(parser: argparse.ArgumentParser, old: str, new: str) -> None:
+    parser.add_argument(old, action=_RenamedOption, new=new, dest=f"renamed_{old.strip('-')}")
 
 
 # -- progress and summary -----------------------------------------------------------------
@@ -193,8 +209,9 @@ def _add_process(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--cam1", type=Path, action="append", required=True, metavar="FILE")
     parser.add_argument("--cam2", type=Path, action="append", required=True, metavar="FILE")
     parser.add_argument(
-        "--height", type=float, metavar="METRES", help="camera height above the ground"
+        "--camera-height", type=float, metavar="METRES", help="camera height above the ground"
     )
+    _renamed(parser, "--height", "--camera-height")
     _add_run_options(parser)
     _add_parameter_options(parser, tracking=True)
     parser.set_defaults(func=_process)
@@ -212,7 +229,7 @@ def _process(args: argparse.Namespace) -> int:
             args.out,
             params,
             progress,
-            camera_height_m=args.height,
+            camera_height_m=args.camera_height,
         ),
     )
 
@@ -229,8 +246,10 @@ def _add_reconstruct(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--flashes1", type=Path, required=True, metavar="CSV")
     parser.add_argument("--flashes2", type=Path, required=True, metavar="CSV")
-    parser.add_argument("--width", type=int, required=True, help="frame width, pixels")
-    parser.add_argument("--height", type=int, required=True, help="frame height, pixels")
+    parser.add_argument("--frame-width", type=int, required=True, help="frame width, pixels")
+    parser.add_argument("--frame-height", type=int, required=True, help="frame height, pixels")
+    _renamed(parser, "--width", "--frame-width")
+    _renamed(parser, "--height", "--frame-height")
     parser.add_argument("--fps", type=float, required=True)
     _add_run_options(parser)
     _add_parameter_options(parser, tracking=False)
@@ -245,8 +264,8 @@ def _reconstruct(args: argparse.Namespace) -> int:
         lambda params, progress: reconstruct(
             args.flashes1,
             args.flashes2,
-            args.width,
-            args.height,
+            args.frame_width,
+            args.frame_height,
             args.fps,
             args.separation,
             args.out,

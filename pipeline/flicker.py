@@ -17,27 +17,9 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field
 from scipy.spatial import cKDTree
 
-
-class FlickerParams(BaseModel):
-    """Where the line between a flash train and a flickering light source is drawn."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    enabled: bool = Field(True, description="Reject candidates at flickering spots.")
-    radius_deg: float = Field(
-        1.5, gt=0, le=20, description="Neighbourhood radius (Chebyshev, in pixels of this angle)."
-    )
-    window_s: float = Field(2.0, gt=0, description="Length of the centred time window, seconds.")
-    max_duty: float = Field(
-        0.4,
-        gt=0,
-        le=1,
-        description="Candidates per frame in the neighbourhood above which a spot flickers "
-        "(flash trains measure <= 0.25; moon-through-leaves 0.5–0.9 in the simulator).",
-    )
+from pipeline.params import FlickerParams
 
 
 def flicker_duty(

@@ -24,6 +24,18 @@ from numpy.typing import ArrayLike, NDArray
 FloatArray = NDArray[np.float64]
 
 
+def check_width(width: int) -> None:
+    """Refuse a frame width that cannot be an equirectangular frame's.
+
+    Raises
+    ------
+    ValueError
+        If `width` is not a positive even number of pixels.
+    """
+    if int(width) != width or width <= 0 or width % 2:
+        raise ValueError(f"width must be a positive even number of pixels, got {width!r}")
+
+
 def pixel_to_bearing(u: ArrayLike, v: ArrayLike, width: int) -> FloatArray:
     """Unit bearing vectors of equirectangular pixel positions.
 

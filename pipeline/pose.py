@@ -38,12 +38,12 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field, model_validator
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from pipeline.detections import Detections
-from pipeline.geometry import Pose, RayPair, closest_approach, pixel_to_bearing
+from pipeline.geometry import Pose, RayPair, check_width, closest_approach, pixel_to_bearing
+from pipeline.params import PoseParams
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -58,63 +58,6 @@ _START_NFEV = 100
 
 class PoseError(ValueError):
     """The pose cannot be estimated (too few calibration pairs or inliers)."""
-
-
-class PoseParams(BaseModel):
-    """Parameters of `estimate_pose`."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    min_pairs: int = Field(
-        default=12,
-        ge=8,
-        description="Fewest calibration pairs (and inliers) accepted; the 8-point start "
-        "needs at least 8.",
-    )
-    inlier_sigmas: float = Field(
-        default=3.0,
-        gt=0,
-        description="Inlier threshold on the depth-normalised gap, in robust standard "
-        "deviations (1.4826 × median residual), so that it follows the bearing noise.",
-    )
-    min_threshold_deg: float = Field(
-        default=0.1,
-        gt=0,
-        description="Smallest inlier threshold (degrees); also the scale of the robust loss.",
-    )
-    max_threshold_deg: float = Field(
-        default=2.0,
-        gt=0,
-        description="Largest inlier threshold (degrees): when most pairs are mismatched the "
-        "noise estimate is meaningless, and a miss this large is never an inlier.",
-    )
-    max_start_pairs: int = Field(
-        default=1000,
-        ge=8,
-        description="The starts compete on at most this many evenly spread pairs; the best "
-        "is then refined on all pairs.",
-    )
-    max_refits: int = Field(
-        default=3,
-        ge=1,
-        le=20,
-        description="Refits on inliers, stopped early when the inlier set is stable.",
-    )
-    min_inlier_fraction: float = Field(
-        default=0.5,
-        ge=0,
-        le=1,
-        description="Below this fraction of inliers the estimate carries a warning.",
-    )
-
-    @model_validator(mode="after")
-    def _ordered_thresholds(self) -> PoseParams:
-        if self.min_threshold_deg > self.max_threshold_deg:
-            raise ValueError(
-                f"min_threshold_deg ({self.min_threshold_deg}) exceeds max_threshold_deg "
-                f"({self.max_threshold_deg})"
-            )
-        return self
 
 
 @dataclass(frozen=True)
@@ -204,7 +147,7 @@ def calibration_pairs(
     CalibrationPairs
         Sorted by camera-1 frame.
     """
-    _check_width(width)
+    check_width(width)
     rows1, frames = _single_flash_rows(det1.frame)
     rows2, frames2 = _single_flash_rows(det2.frame - int(delay_frames))
     common, i1, i2 = np.intersect1d(frames, frames2, assume_unique=True, return_indices=True)
@@ -429,8 +372,3 @@ def _single_flash_rows(frames: IntArray) -> tuple[IntArray, IntArray]:
     unique, first, count = np.unique(frames, return_index=True, return_counts=True)
     single = count == 1
     return first[single], unique[single]
-
-
-def _check_width(width: int) -> None:
-    if int(width) != width or width <= 0 or width % 2:
-        raise ValueError(f"width must be a positive even number of pixels, got {width!r}")

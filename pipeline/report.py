@@ -1,4 +1,4 @@
-"""Quality report of a run: PNG plots and ``summary.json``.
+"""Quality report of a run: PNG plots (the summary is `pipeline.summary`).
 
 Plots: the per-frame flash counts of both cameras aligned by the estimated delay, the
 delay votes and cross-correlation, the calibration residuals, and the trajectories in
@@ -8,7 +8,7 @@ delay votes and cross-correlation, the calibration residuals, and the trajectori
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import matplotlib
 
@@ -18,14 +18,13 @@ import numpy as np
 
 from pipeline import artifacts
 from pipeline.detections import Detections
-from pipeline.results import StereoProbe, read_json, read_trajectories, write_json
+from pipeline.jsonio import read_json
+from pipeline.probe import StereoProbe
+from pipeline.results import read_trajectories
 
-if TYPE_CHECKING:
-    from pipeline.run import ProcessParams
 
-
-def write_report(workdir: Path, params: ProcessParams) -> list[str]:
-    """Write the plots and ``report/summary.json``; return their names relative to workdir."""
+def write_plots(workdir: Path) -> list[str]:
+    """Write the report's plots; return their names relative to `workdir`."""
     report_dir = workdir / artifacts.REPORT_DIR
     report_dir.mkdir(parents=True, exist_ok=True)
     probe = StereoProbe.load(workdir)
@@ -47,49 +46,7 @@ def write_report(workdir: Path, params: ProcessParams) -> list[str]:
     for filename, draw in plots.items():
         draw(report_dir / filename)
         names.append(f"{artifacts.REPORT_DIR}/{filename}")
-    write_json(workdir / artifacts.SUMMARY_JSON, summarise(workdir, params, trajectories))
-    return [*names, artifacts.SUMMARY_JSON]
-
-
-def summarise(
-    workdir: Path, params: ProcessParams, trajectories: dict[str, np.ndarray]
-) -> dict[str, Any]:
-    """Counts, calibration quality, warnings and per-stage timings of a run."""
-    metrics = {
-        path.stem: read_json(path)
-        for path in sorted((workdir / artifacts.METRICS_DIR).glob("*.json"))
-    }
-    calibration = read_json(workdir / artifacts.CALIBRATION_JSON)
-    counts: dict[str, Any] = {}
-    for camera in artifacts.CAMERAS:
-        merge = metrics.get(f"merge_cam{camera}", {}).get("metrics", {})
-        counts[f"candidates_cam{camera}"] = merge.get("n_candidates")
-        counts[f"flashes_cam{camera}"] = len(
-            Detections.from_csv(workdir / artifacts.flashes_name(camera))
-        )
-    counts.update(
-        calibration_pairs=calibration.get("n_calibration_pairs"),
-        calibration_inliers=calibration.get("n_calibration_inliers"),
-        points=len(trajectories["frame"]),
-        streaks=len(np.unique(trajectories["streak_id"])),
-        trajectories=len(np.unique(trajectories["trajectory_id"])),
-    )
-    timings = {name: m["metrics"].get("seconds") for name, m in metrics.items()}
-    for camera in artifacts.CAMERAS:
-        merge = metrics.get(f"merge_cam{camera}", {}).get("metrics", {})
-        if "tracking_seconds" in merge:
-            timings[f"track_cam{camera}"] = merge["tracking_seconds"]
-    return {
-        "counts": counts,
-        "delay_frames": calibration["delay_frames"],
-        "delay_confidence": calibration["delay_confidence"],
-        "rotation": calibration["rotation"],
-        "translation": calibration["translation"],
-        "residuals": calibration.get("residuals", {}),
-        "warnings": [w for m in metrics.values() for w in m.get("warnings", [])],
-        "timings_s": timings,
-        "parameters": params.model_dump(),
-    }
+    return names
 
 
 def plot_counts(

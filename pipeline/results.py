@@ -10,64 +10,21 @@
 
 from __future__ import annotations
 
-import json
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Self
+from typing import Any
 
 import numpy as np
 
-from pipeline.artifacts import PROBE_JSON
 from pipeline.detections import read_csv, write_csv
 from pipeline.geometry import Pose
+from pipeline.jsonio import read_json, write_json
 from pipeline.trajectories import Linking
 from pipeline.triangulate import Points3D
-from pipeline.video import VideoInfo
 
 #: Leading columns of ``trajectories.csv`` (CONTRACT), then the extra ones we add.
 TRAJECTORY_COLUMNS = ("x", "y", "z", "frame", "time_s", "streak_id", "trajectory_id")
 TRAJECTORY_EXTRA_COLUMNS = ("gap_m", "range_m")
-
-
-@dataclass(frozen=True)
-class StereoProbe:
-    """Frame geometry and timing shared by both cameras, and each camera's length.
-
-    ``videos`` is empty when the run starts from detections (``reconstruct``).
-    """
-
-    width: int
-    height: int
-    fps: float
-    n_frames: dict[int, int]
-    videos: dict[int, VideoInfo] = field(default_factory=dict)
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "width": self.width,
-            "height": self.height,
-            "fps": self.fps,
-            "n_frames": {str(c): n for c, n in self.n_frames.items()},
-            "videos": {str(c): v.to_dict() for c, v in self.videos.items()},
-        }
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> Self:
-        return cls(
-            width=int(data["width"]),
-            height=int(data["height"]),
-            fps=float(data["fps"]),
-            n_frames={int(c): int(n) for c, n in data["n_frames"].items()},
-            videos={int(c): VideoInfo.from_dict(v) for c, v in data.get("videos", {}).items()},
-        )
-
-    @classmethod
-    def load(cls, workdir: Path) -> Self:
-        return cls.from_dict(read_json(workdir / PROBE_JSON))
-
-    def save(self, workdir: Path) -> None:
-        write_json(workdir / PROBE_JSON, self.to_dict())
 
 
 @dataclass(frozen=True)
@@ -81,25 +38,6 @@ class Calibration:
     fps: float
     width: int
     height: int
-
-
-def write_json(path: Path, data: dict[str, Any]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(data, indent=2, default=_json_default) + "\n", encoding="utf-8")
-
-
-def read_json(path: Path) -> dict[str, Any]:
-    return json.loads(path.read_text(encoding="utf-8"))
-
-
-def _json_default(value: Any) -> Any:
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, Path):
-        return str(value)
-    raise TypeError(f"cannot serialise {type(value).__name__} to JSON")
 
 
 def write_calibration(path: Path, calibration: Calibration, extra: dict[str, Any]) -> None:

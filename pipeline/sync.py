@@ -23,8 +23,9 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import ArrayLike, NDArray
-from pydantic import BaseModel, ConfigDict, Field
 from scipy import fft, signal
+
+from pipeline.params import SyncParams
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -37,44 +38,6 @@ _WINDOW_BATCH = 50
 
 class SyncError(ValueError):
     """The delay cannot be estimated at all (no flashes, recordings too short, ...)."""
-
-
-class SyncParams(BaseModel):
-    """Parameters of `estimate_delay`."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    max_delay_s: float = Field(
-        default=120.0, gt=0, description="Largest |delay| searched, in seconds (both signs)."
-    )
-    window_s: float = Field(
-        default=10.0, gt=0, description="Length of each RANSAC window of camera 1, in seconds."
-    )
-    n_windows: int = Field(
-        default=200,
-        ge=100,
-        le=10_000,
-        description="Number of random RANSAC windows (at least 100).",
-    )
-    agree_frames: int = Field(
-        default=0,
-        ge=0,
-        description="A window agrees with the modal delay when its vote is within this many "
-        "frames (0: exact agreement).",
-    )
-    outlier_mads: float = Field(
-        default=6.0,
-        gt=0,
-        description="A frame's count is a light-pollution outlier when it exceeds the median "
-        "non-zero count by more than this many robust standard deviations (1.4826 MAD, at "
-        "least 1 flash).",
-    )
-    min_confidence: float = Field(
-        default=0.5, ge=0, le=1, description="Below this confidence the estimate carries a warning."
-    )
-    seed: int = Field(
-        default=0, ge=0, description="Seed of the random window draw (deterministic)."
-    )
 
 
 @dataclass(frozen=True)

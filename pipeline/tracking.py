@@ -57,16 +57,17 @@ import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Literal, Protocol
+from typing import Protocol
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field, model_validator
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from pipeline.chunking import block_grid, box_length, frames_read
 from pipeline.detections import Detections
+from pipeline.params import TrackingParams
 from pipeline.patches import extract_patches
 from pipeline.video import Frame, VideoInfo, iter_frames
 
@@ -86,86 +87,6 @@ _LEVEL_REUSE = 4
 
 # Neighbours after a pixel in raster order (8-connectivity): right, then the row below.
 _FORWARD_NEIGHBOURS = ((0, 1), (1, -1), (1, 0), (1, 1))
-
-
-class TrackingParams(BaseModel):
-    """Parameters of flash-candidate tracking (validated; the service accepts overrides)."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    tau_s: float = Field(
-        default=2.0,
-        gt=0,
-        le=600,
-        description="Background time constant τ in seconds: the EWMA's decay time, or the "
-        "length of the box mean.",
-    )
-    background: Literal["ewma", "box"] = Field(
-        default="ewma",
-        description="'ewma': exponentially weighted mean over τ (restarted on a block grid, "
-        "see block_s); 'box': mean of the frames in the preceding τ (memory: τ·fps frames).",
-    )
-    threshold: float = Field(
-        default=0.1,
-        gt=0,
-        lt=1,
-        description="Candidate pixels have a foreground (frame − background, clipped at 0) "
-        "above this fraction of full scale. 0.1 (25.5 grey levels), half the source "
-        "method's 0.2: a point-like flash spreads over a few pixels (lens blur, pixel "
-        "sampling, compression), so its brightest pixel holds only 45–80 % of its peak, "
-        "and at 0.2 the dim rise/fall frames and distant flashes are lost (candidate "
-        "recall 0.76–0.85 on simulated recordings, 0.96–1.00 at 0.1). 25 levels is still "
-        "over 6σ of compressed night-time sensor noise; the classifier rejects the extra "
-        "candidates.",
-    )
-    blur_px: float = Field(
-        default=0.0,
-        ge=0,
-        le=10,
-        description="Gaussian blur σ in pixels applied to the luminance before background "
-        "subtraction (0 = off); about 1 px suppresses single-pixel noise in grainy video.",
-    )
-    min_area: int = Field(default=1, ge=1, description="Smallest blob kept, in pixels.")
-    max_area: int = Field(
-        default=500,
-        ge=1,
-        description="Largest blob kept, in pixels: fireflies are 1–10 px across even in "
-        "5.6K video; larger blobs are lamps, headlights or exposure changes.",
-    )
-    max_candidates_per_frame: int = Field(
-        default=500,
-        ge=1,
-        description="Blobs kept per frame, the brightest first; the rest are counted as "
-        "dropped (a frame flooded by light must not blow up time or memory).",
-    )
-    max_foreground_px: int = Field(
-        default=50_000,
-        ge=1,
-        description="Candidate pixels labelled per frame; in a flooded frame only the "
-        "brightest are kept (the frame is counted as flooded).",
-    )
-    block_s: float = Field(
-        default=30.0,
-        gt=0,
-        description="EWMA restart grid in seconds: each block of this length is analysed "
-        "by a model warmed on the frames just before it, so chunks are exact.",
-    )
-    warmup_tau: float = Field(
-        default=3.0,
-        ge=0,
-        description="EWMA warm-up before each block, in units of tau_s.",
-    )
-
-    @model_validator(mode="after")
-    def _consistent(self) -> TrackingParams:
-        if self.max_area < self.min_area:
-            raise ValueError(f"max_area ({self.max_area}) is below min_area ({self.min_area})")
-        if self.warmup_tau * self.tau_s > self.block_s:
-            raise ValueError(
-                f"the EWMA warm-up warmup_tau × tau_s = {self.warmup_tau * self.tau_s:g} s "
-                f"must not exceed block_s = {self.block_s:g} s"
-            )
-        return self
 
 
 DEFAULT_PARAMS = TrackingParams()
@@ -267,11 +188,7 @@ def track_with_stats(
     progress: Callable[[int], None] | None = None,
 ) -> TrackingResult:
     """`track`, also returning what was dropped (`TrackingStats`)."""
-    stop = info.n_frames if stop is None else stop
-    if not 0 <= start <= stop <= info.n_frames:
-        raise ValueError(
-            f"frame range [{start}, {stop}) is outside the video's 0..{info.n_frames} frames"
-        )
+    stop = info.checked_range(start, stop)
     first, _ = frames_read(start, stop, info.fps, params)
     detector = _FrameDetector(info, params, start)
     scorer = _PatchScorer(classifier)
@@ -298,66 +215,6 @@ def track_with_stats(
             stats.flooded_frames,
         )
     return TrackingResult(detections, stats)
-
-
-def frames_read(start: int, stop: int, fps: float, params: TrackingParams) -> tuple[int, int]:
-    """Global frame range ``[first, stop)`` that tracking ``[start, stop)`` decodes.
-
-    ``first`` is where the background model's warm-up begins: the start of the EWMA
-    block's warm-up, or ``L`` frames before ``start`` for the box mean.
-    """
-    if params.background == "box":
-        return max(0, start - _box_length(fps, params)), stop
-    block, warmup = _block_grid(fps, params)
-    return max(0, (start // block) * block - warmup), stop
-
-
-def chunk_ranges(
-    n_frames: int, fps: float, params: TrackingParams, chunk_s: float = 60.0
-) -> list[tuple[int, int]]:
-    """Frame ranges of about `chunk_s` seconds that tile ``[0, n_frames)``.
-
-    Every range is exact whatever its bounds. For the EWMA background, chunks of at
-    least half a block are rounded to whole blocks, so each starts on the block grid
-    and decodes only the warm-up before it; shorter chunks decode from the warm-up of
-    the block they start in (up to ``block_s`` more).
-
-    Parameters
-    ----------
-    n_frames : int
-        Frames in the video.
-    fps : float
-        Frame rate, frames per second.
-    params : TrackingParams
-        Background model and its block grid.
-    chunk_s : float
-        Target chunk length in seconds.
-
-    Returns
-    -------
-    list of (start, stop)
-        Consecutive half-open ranges; empty for an empty video.
-    """
-    if n_frames < 0:
-        raise ValueError(f"n_frames must be non-negative, got {n_frames}")
-    if fps <= 0 or chunk_s <= 0:
-        raise ValueError(f"fps and chunk_s must be positive, got fps={fps}, chunk_s={chunk_s}")
-    step = max(1, round(chunk_s * fps))
-    block, _ = _block_grid(fps, params)
-    if params.background == "ewma" and 2 * step >= block:
-        step = max(1, round(step / block)) * block
-    return [(a, min(a + step, n_frames)) for a in range(0, n_frames, step)]
-
-
-def _block_grid(fps: float, params: TrackingParams) -> tuple[int, int]:
-    """EWMA block length and warm-up length, in frames."""
-    block = max(1, round(params.block_s * fps))
-    warmup = min(block, round(params.warmup_tau * params.tau_s * fps))
-    return block, warmup
-
-
-def _box_length(fps: float, params: TrackingParams) -> int:
-    return max(1, round(params.tau_s * fps))
 
 
 # -- background models ---------------------------------------------------------------
@@ -420,7 +277,7 @@ class _BlockEwma:
     def __init__(self, shape: tuple[int, int], fps: float, params: TrackingParams, start: int):
         self._shape = shape
         self._alpha = 1.0 - math.exp(-1.0 / (params.tau_s * fps))
-        self._block, self._warmup = _block_grid(fps, params)
+        self._block, self._warmup = block_grid(fps, params)
         self._first_block = start // self._block
         self._models: dict[int, _Ewma] = {}
 
@@ -471,7 +328,7 @@ class _BoxMean:
 def _make_background(info: VideoInfo, params: TrackingParams, start: int) -> _Background:
     shape = (info.height, info.width)
     if params.background == "box":
-        return _BoxMean(shape, _box_length(info.fps, params))
+        return _BoxMean(shape, box_length(info.fps, params))
     return _BlockEwma(shape, info.fps, params, start)
 
 

@@ -20,37 +20,15 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from pipeline.params import LinkingParams
 from pipeline.triangulate import Points3D
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
-
-
-class LinkingParams(BaseModel):
-    """Parameters of `link`."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    streak_radius_m: float = Field(
-        default=0.3,
-        gt=0,
-        description="Largest distance (m) between a flash's positions in consecutive frames.",
-    )
-    trajectory_radius_m: float = Field(
-        default=1.0,
-        gt=0,
-        description="Largest distance (m) between a streak's end and the next streak's start.",
-    )
-    max_gap_s: float = Field(
-        default=1.0,
-        gt=0,
-        description="Longest time (s) from a streak's end to the next streak's start.",
-    )
 
 
 @dataclass(frozen=True)

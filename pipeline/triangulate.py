@@ -18,46 +18,14 @@ from typing import Self
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field
 from scipy.optimize import linear_sum_assignment
 
 from pipeline.detections import Detections
-from pipeline.geometry import Pose, closest_approach, pixel_to_bearing
+from pipeline.geometry import Pose, check_width, closest_approach, pixel_to_bearing
+from pipeline.params import TriangulationParams, validate_separation
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
-
-#: Largest camera separation accepted, in metres (volunteer rigs are 1–2 m).
-MAX_SEPARATION_M = 100.0
-
-
-class TriangulationParams(BaseModel):
-    """Parameters of `triangulate`."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    gate: float = Field(
-        default=0.2,
-        gt=0,
-        description="Largest ray gap of a match, in units of the camera separation.",
-    )
-    max_range_m: float = Field(
-        default=20.0, gt=0, description="Points farther than this from camera 1 (m) are dropped."
-    )
-    max_gap_deg: float = Field(
-        default=1.0,
-        gt=0,
-        description="Largest ray gap of a match as an angle seen from the farther camera, "
-        "degrees: near the cameras a gap under `gate` can still be a gross mismatch "
-        "(simulated true matches measure <= 0.3 deg, mismatches >= 1.2 deg).",
-    )
-    min_parallax_px: float = Field(
-        default=2.0,
-        ge=0,
-        description="Smallest angle the baseline subtends at a point, in pixels of angle "
-        "(360 deg / width). Near the baseline's axis a tenth of a pixel of localisation "
-        "error moves the point by several percent of its range; such points are dropped.",
-    )
 
 
 @dataclass(frozen=True)
@@ -91,21 +59,6 @@ class Points3D:
     def select(self, mask: NDArray[np.bool_] | IntArray) -> Self:
         """Rows picked by a boolean mask or an integer index array."""
         return type(self)(**{f.name: getattr(self, f.name)[mask] for f in fields(self)})
-
-
-def validate_separation(separation_m: float) -> None:
-    """Refuse a camera separation (metres) that cannot be a real measurement.
-
-    Raises
-    ------
-    ValueError
-        If it is not a finite distance in ``(0, MAX_SEPARATION_M]``.
-    """
-    if not (np.isfinite(separation_m) and 0 < separation_m <= MAX_SEPARATION_M):
-        raise ValueError(
-            f"camera separation must be a finite distance in (0, {MAX_SEPARATION_M:g}] m, "
-            f"got {separation_m!r}"
-        )
 
 
 def triangulate(
@@ -150,8 +103,7 @@ def triangulate(
         not a positive even number.
     """
     validate_separation(separation_m)
-    if int(width) != width or width <= 0 or width % 2:
-        raise ValueError(f"width must be a positive even number of pixels, got {width!r}")
+    check_width(width)
     pairs = candidate_pairs(det1.frame, det2.frame - int(delay_frames))
     i1, i2 = pairs.index1, pairs.index2
     rays = closest_approach(

@@ -14,14 +14,16 @@ crops; a whole frame is never converted to RGB.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
 import av
 import numpy as np
 from numpy.typing import NDArray
+
+from pipeline.probe import ChapterInfo, VideoError, VideoInfo
 
 #: Relative frame-rate difference tolerated between chapters or cameras: absorbs rounded
 #: rate metadata, yet refuses 30 against 30000/1001 fps (0.1 %, a frame every 33 s).
@@ -35,138 +37,6 @@ _MATRIX_BY_COLORSPACE = {1: "bt709", 5: "bt601", 6: "bt601", 9: "bt2020", 10: "b
 _AVCOL_RANGE_JPEG = 2
 
 Matrix = Literal["bt601", "bt709", "bt2020"]
-
-
-class VideoError(ValueError):
-    """A video the pipeline refuses or cannot decode; the message names the file."""
-
-
-@dataclass(frozen=True)
-class ChapterInfo:
-    """One chapter file of a camera.
-
-    Attributes
-    ----------
-    path : Path
-        The file.
-    n_frames : int
-        Exact number of frames in the file.
-    first_frame : int
-        Global index of the chapter's first frame.
-    codec : str
-        FFmpeg decoder name (``h264``, ``hevc``…).
-    first_pts : int
-        Presentation timestamp of the first frame, in the stream's time base; frame
-        ``i`` of the chapter is the one presented ``i / fps`` seconds later.
-    """
-
-    path: Path
-    n_frames: int
-    first_frame: int
-    codec: str
-    first_pts: int = 0
-
-    @property
-    def stop_frame(self) -> int:
-        """Global index one past the chapter's last frame."""
-        return self.first_frame + self.n_frames
-
-
-@dataclass(frozen=True)
-class VideoInfo:
-    """Probe result of one camera: its chapters and their common stream properties.
-
-    Attributes
-    ----------
-    chapters : tuple of ChapterInfo
-        In playback order; their frame ranges tile ``[0, n_frames)``.
-    width, height : int
-        Frame size in pixels (``width = 2 height``, equirectangular).
-    fps : float
-        Frame rate in frames per second.
-    n_frames : int
-        Total number of frames over all chapters.
-    codec : str
-        Decoder name; chapters with different codecs are joined with ``/``.
-    """
-
-    chapters: tuple[ChapterInfo, ...]
-    width: int
-    height: int
-    fps: float
-    n_frames: int
-    codec: str
-
-    @property
-    def duration_s(self) -> float:
-        return self.n_frames / self.fps
-
-    def chapters_for(self, start: int, stop: int) -> tuple[int, ...]:
-        """Indices of the chapters holding any frame of the global range ``[start, stop)``."""
-        return tuple(
-            i
-            for i, ch in enumerate(self.chapters)
-            if ch.first_frame < stop and ch.stop_frame > start
-        )
-
-    def with_paths(self, paths: Mapping[int, str | Path]) -> VideoInfo:
-        """The same recording with chapter ``i`` read from ``paths[i]`` (e.g. a local copy)."""
-        chapters = tuple(
-            replace(ch, path=Path(paths[i])) if i in paths else ch
-            for i, ch in enumerate(self.chapters)
-        )
-        return replace(self, chapters=chapters)
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-able form (paths as strings); `from_dict` reverses it exactly."""
-        return {
-            "chapters": [
-                {
-                    "path": str(ch.path),
-                    "n_frames": ch.n_frames,
-                    "first_frame": ch.first_frame,
-                    "codec": ch.codec,
-                    "first_pts": ch.first_pts,
-                }
-                for ch in self.chapters
-            ],
-            "width": self.width,
-            "height": self.height,
-            "fps": self.fps,
-            "n_frames": self.n_frames,
-            "codec": self.codec,
-        }
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> VideoInfo:
-        """Rebuild a probe result written by `to_dict`.
-
-        Raises
-        ------
-        VideoError
-            If a field is missing or has the wrong type.
-        """
-        try:
-            chapters = tuple(
-                ChapterInfo(
-                    path=Path(ch["path"]),
-                    n_frames=int(ch["n_frames"]),
-                    first_frame=int(ch["first_frame"]),
-                    codec=str(ch["codec"]),
-                    first_pts=int(ch.get("first_pts", 0)),
-                )
-                for ch in data["chapters"]
-            )
-            return cls(
-                chapters=chapters,
-                width=int(data["width"]),
-                height=int(data["height"]),
-                fps=float(data["fps"]),
-                n_frames=int(data["n_frames"]),
-                codec=str(data["codec"]),
-            )
-        except (KeyError, TypeError, ValueError) as exc:
-            raise VideoError(f"malformed video probe record: {exc!r}") from None
 
 
 @dataclass(frozen=True)
@@ -471,11 +341,7 @@ def iter_frames(info: VideoInfo, start: int = 0, stop: int | None = None) -> Ite
         If a chapter yields fewer frames than probed, skips a frame, or the decoder
         fails; the message names the file and the frame.
     """
-    stop = info.n_frames if stop is None else stop
-    if not 0 <= start <= stop <= info.n_frames:
-        raise ValueError(
-            f"frame range [{start}, {stop}) is outside the video's 0..{info.n_frames} frames"
-        )
+    stop = info.checked_range(start, stop)
     if start == stop:
         return
     for i in info.chapters_for(start, stop):

@@ -9,9 +9,6 @@ from __future__ import annotations
 import argparse
 import sys
 
-from sqlalchemy import select
-from sqlalchemy.exc import IntegrityError
-
 from services.core.settings import get_settings
 
 
@@ -40,9 +37,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _create_team(args: argparse.Namespace) -> int:
+    from sqlalchemy.exc import IntegrityError
+
     from services.core.db import make_engine, make_session_factory, transaction
     from services.core.models import Team
     from services.core.security import hash_token, new_team_token
+    from services.domain.repositories import teams
 
     name = args.name.strip()
     if not name or len(name) > 100:
@@ -52,7 +52,7 @@ def _create_team(args: argparse.Namespace) -> int:
     engine = make_engine(get_settings().database_url)
     try:
         with transaction(make_session_factory(engine)) as session:
-            if session.scalars(select(Team).where(Team.name == name)).first():
+            if teams.by_name(session, name) is not None:
                 print(f"error: team {name!r} already exists", file=sys.stderr)
                 return 1
             session.add(Team(name=name, token_hash=hash_token(token)))

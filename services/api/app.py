@@ -12,8 +12,8 @@ from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 
 from pipeline import __version__
-from services.api.jobs import API_PREFIX
 from services.api.routers import admin, downloads, health, jobs, nights, pages
+from services.api.views import API_PREFIX
 from services.core.db import make_engine, make_session_factory
 from services.core.settings import Settings, get_settings
 from services.core.storage import (
@@ -22,7 +22,15 @@ from services.core.storage import (
     TransientStorageError,
     make_storage,
 )
-from services.core.workflow import EnqueueError, WorkflowError
+from services.domain.errors import (
+    Conflict,
+    DomainError,
+    Forbidden,
+    Invalid,
+    NotFound,
+    Unauthenticated,
+    Unavailable,
+)
 from services.worker.celery_app import make_celery
 from services.worker.dispatch import sender
 
@@ -35,9 +43,30 @@ create-team NAME`) for a team's own nights and jobs, or the admin token for
 `/api/v1/admin`. Errors are JSON `{"detail": ...}`; 422 details say which field is wrong.
 """
 
+#: HTTP status of each kind of error the domain and the storage raise (first match wins).
+ERROR_STATUS: tuple[tuple[type[Exception], int], ...] = (
+    (NotFound, status.HTTP_404_NOT_FOUND),
+    (Conflict, status.HTTP_409_CONFLICT),
+    (Invalid, status.HTTP_422_UNPROCESSABLE_CONTENT),
+    (Unauthenticated, status.HTTP_401_UNAUTHORIZED),
+    (Forbidden, status.HTTP_403_FORBIDDEN),
+    (Unavailable, status.HTTP_503_SERVICE_UNAVAILABLE),
+    (TransientStorageError, status.HTTP_503_SERVICE_UNAVAILABLE),
+    (MissingObjectError, status.HTTP_404_NOT_FOUND),
+    (StorageError, status.HTTP_502_BAD_GATEWAY),
+)
 
-def _error(code: int, exc: Exception) -> JSONResponse:
-    return JSONResponse({"detail": str(exc)}, status_code=code)
+
+def _error(_: Request, exc: Exception) -> JSONResponse:
+    """The one mapping of domain and storage errors to HTTP responses."""
+    code = next(code for kind, code in ERROR_STATUS if isinstance(exc, kind))
+    headers = dict(exc.headers) if isinstance(exc, DomainError) else {}
+    if isinstance(exc, Unauthenticated):
+        headers["WWW-Authenticate"] = "Bearer"
+    detail: object = str(exc)
+    if isinstance(exc, Invalid):  # shaped like FastAPI's own validation errors
+        detail = [{"loc": exc.location, "msg": exc.message, "type": "value_error"}]
+    return JSONResponse({"detail": detail}, status_code=code, headers=headers)
 
 
 def _invalid_request(_: Request, exc: Exception) -> JSONResponse:
@@ -74,14 +103,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     static = Path(__file__).resolve().parent / "static"
     app.mount("/static", StaticFiles(directory=static), name="static")
 
-    handlers: list[tuple[type[Exception], int]] = [
-        (WorkflowError, status.HTTP_409_CONFLICT),
-        (EnqueueError, status.HTTP_503_SERVICE_UNAVAILABLE),
-        (TransientStorageError, status.HTTP_503_SERVICE_UNAVAILABLE),
-        (MissingObjectError, status.HTTP_404_NOT_FOUND),
-        (StorageError, status.HTTP_502_BAD_GATEWAY),
-    ]
     app.add_exception_handler(RequestValidationError, _invalid_request)
-    for exc_type, code in handlers:
-        app.add_exception_handler(exc_type, lambda _r, e, code=code: _error(code, e))
+    for kind in (DomainError, StorageError, TransientStorageError):
+        app.add_exception_handler(kind, _error)
     return app

@@ -9,8 +9,8 @@ from typing import Annotated, Any, Literal
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from pipeline.triangulate import MAX_SEPARATION_M
-from services.core.workflow import STAGES
+from pipeline.graph import STAGE_NAMES
+from pipeline.params import MAX_SEPARATION_M
 
 CONTROL_CHARS = re.compile(r"[\x00-\x08\x0b-\x1f\x7f]")
 FILENAME_FORBIDDEN = re.compile(r"[\x00-\x1f\x7f/\\]")
@@ -41,7 +41,7 @@ Line = Annotated[str, AfterValidator(_single_line)]
 Text = Annotated[str, AfterValidator(_no_control_chars)]
 FileName = Annotated[str, Field(min_length=1, max_length=255), AfterValidator(_safe_filename)]
 StageName = Literal["probe", "track", "merge", "sync", "pose", "triangulate", "link", "report"]
-assert set(StageName.__args__) == set(STAGES)  # type: ignore[attr-defined]
+assert set(StageName.__args__) == set(STAGE_NAMES)  # type: ignore[attr-defined]
 
 FIRST_DATE = dt.date(2000, 1, 1)
 
@@ -226,7 +226,9 @@ class JobOut(BaseModel):
     finished_at: dt.datetime | None
     files: list[FileOut]
     stages: list[StageOut]
-    summary: dict[str, Any] = Field(description="headline metrics of the finished stages")
+    summary: dict[str, Any] = Field(
+        description="the run summary (pipeline.summary) of the stages finished so far"
+    )
 
 
 class ArtifactOut(BaseModel):

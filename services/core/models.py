@@ -116,6 +116,8 @@ class Job(Base):
     night_id: Mapped[uuid.UUID] = mapped_column(ForeignKey("nights.id"), index=True)
     status: Mapped[str] = mapped_column(String(16), default=JobStatus.CREATED)
     params: Mapped[dict[str, Any]]
+    #: The run summary of the stages finished so far (`pipeline.summary`).
+    summary: Mapped[dict[str, Any]] = mapped_column(default=dict, server_default="{}")
     error: Mapped[str | None] = mapped_column(Text)
     created_at: Mapped[datetime] = _now()
     submitted_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))

@@ -1,7 +1,7 @@
 """The Celery application and its reliability settings.
 
 Why each setting (the broker is Redis; PostgreSQL holds the truth, see
-`services.core.workflow`):
+`services.domain.workflow`):
 
 * ``task_acks_late``: a message is acknowledged when its task *ends*, so a worker that
   dies mid-task (SIGKILL, OOM, lost machine) leaves it to be delivered again. Stages

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from celery import Celery
 
-from services.core.workflow import Send, StageMessage
+from services.domain.workflow import Send, StageMessage
 
 
 def task_name(stage: str) -> str:

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from services.core.storage import Storage, sha256_file
-from services.core.workflow import job_key
+from services.domain.workflow import job_key
 
 
 class InputError(Exception):

@@ -1,20 +1,18 @@
-"""Running one stage of one job: state in PostgreSQL, files through object storage.
+"""Running one unit of one job: state in PostgreSQL, files through object storage.
 
 `execute` is what every stage task does: claim the stage row (token check, attempt and
-delivery counts), download the stage's inputs into a temporary folder, call the
-pipeline's stage function, upload what it wrote under the job's deterministic keys,
-record metrics or the error, and let `services.core.workflow.advance` queue what
-follows. Errors are sorted into three kinds: transient (storage or database
-unreachable, broker refused) → retried with backoff up to ``max_attempts``;
-cancellation → the stage stops quietly; anything else → the stage and the job fail
-with a readable message and nothing is retried.
+delivery counts), download exactly what the unit reads (`pipeline.graph.reads`) and the
+input videos it decodes into a temporary folder, run it (`pipeline.graph.execute`),
+upload what it wrote under the job's deterministic keys, record metrics or the error,
+and let `services.domain.workflow.advance` queue what follows. Errors are sorted into
+three kinds: transient (storage or database unreachable, broker refused) → retried with
+backoff up to ``max_attempts``; cancellation → the stage stops quietly; anything else →
+the stage and the job fail with a readable message and nothing is retried.
 """
 
 from __future__ import annotations
 
-import json
 import logging
-import math
 import mimetypes
 import random
 import time
@@ -23,31 +21,27 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from tempfile import TemporaryDirectory
-from typing import Any
 
 from celery import Task
 from celery.exceptions import SoftTimeLimitExceeded
-from sqlalchemy import select
-from sqlalchemy.dialects.postgresql import insert
 from sqlalchemy.exc import DBAPIError, OperationalError
 from sqlalchemy.orm import Session
 
-from pipeline.run import ProcessParams, StageResult
+from pipeline import graph
+from pipeline.artifacts import PROBE_JSON
+from pipeline.graph import StageResult, Unit
+from pipeline.jsonio import json_safe
+from pipeline.params import ProcessParams
+from pipeline.probe import StereoProbe
+from pipeline.summary import summarise
 from services.core.db import SessionFactory, transaction
-from services.core.models import Artifact, Job, JobStatus, Stage, StageStatus
+from services.core.models import Job, Stage, StageStatus
 from services.core.settings import Settings
 from services.core.storage import Storage, TransientStorageError
-from services.core.workflow import (
-    ACTIVE_JOB,
-    EnqueueError,
-    Send,
-    advance,
-    job_key,
-    lock_job,
-    now,
-    stop_job,
-)
-from services.worker.inputs import InputCache, InputRef
+from services.domain import states, workflow
+from services.domain.repositories import jobs
+from services.domain.workflow import EnqueueError, Send, job_key, unit_of
+from services.worker.inputs import InputCache, InputRef, fetch_artifact
 
 log = logging.getLogger(__name__)
 
@@ -74,17 +68,14 @@ class Runtime:
 
 
 @dataclass(frozen=True)
-class StageContext:
-    """Everything a stage body needs, read from the database when the stage starts."""
+class Claim:
+    """A claimed delivery: everything its unit needs, read when the stage started."""
 
     job_id: str
     stage_id: int
     key: str
-    name: str
+    unit: Unit
     token: str
-    camera: int | None
-    start: int | None
-    stop: int | None
     attempt: int
     deliveries: int
     params: ProcessParams
@@ -94,38 +85,38 @@ class StageContext:
 
 
 Progress = Callable[[float], None]
-StageBody = Callable[[StageContext, Path, Runtime, Progress], StageResult]
+StageBody = Callable[[Claim, Path, "Runtime", Progress], StageResult]
 
 
-def describe(stage: Stage) -> str:
-    """Readable name of a stage row, e.g. ``track camera 1 frames 0–1800``."""
-    if stage.name == "track":
-        return f"track camera {stage.camera} frames {stage.frame_start}–{stage.frame_stop}"
-    return stage.name if stage.camera is None else f"{stage.name} camera {stage.camera}"
+def execute(
+    task: Task, rt: Runtime, job_id: str, key: str, token: str, body: StageBody | None = None
+) -> None:
+    """Run one delivery of a stage task (see the module docstring).
 
-
-def execute(task: Task, rt: Runtime, body: StageBody, job_id: str, key: str, token: str) -> None:
-    """Run one delivery of a stage task (see the module docstring)."""
+    `body` runs the claimed unit in a working folder; `run_unit` unless given.
+    """
+    body = body or run_unit
     try:
-        ctx = claim(rt, job_id, key, token)
+        claimed = claim(rt, job_id, key, token)
     except TRANSIENT_ERRORS as exc:
         raise _retry(task, rt, None, exc) from exc
-    if ctx is None:
+    if claimed is None:
         return
     try:
         rt.settings.work_dir.mkdir(parents=True, exist_ok=True)
-        with TemporaryDirectory(dir=rt.settings.work_dir, prefix=f"{ctx.name}-") as tmp:
+        with TemporaryDirectory(dir=rt.settings.work_dir, prefix=f"{claimed.unit.stage}-") as tmp:
             workdir = Path(tmp)
-            result = body(ctx, workdir, rt, ProgressReporter(rt, ctx))
-            _check_current(rt, ctx)
-            uploaded = upload_outputs(rt.storage, ctx.job_id, workdir, result.outputs)
-        succeed(rt, ctx, result, uploaded)
-        advance(rt.sessions, rt.storage, rt.send, ctx.job_id)
+            result = body(claimed, workdir, rt, ProgressReporter(rt, claimed))
+            _check_current(rt, claimed)
+            uploaded = upload_outputs(rt.storage, claimed.job_id, workdir, result.outputs)
+        succeed(rt, claimed, result, uploaded)
+        with rt.sessions() as session:
+            workflow.advance(session, rt.storage, rt.send, claimed.job_id)
     except StageCancelled:
         log.info("stage %s of job %s stopped: job no longer running", key, job_id)
-        _finish_stage(rt, ctx, StageStatus.CANCELLED, "stopped: the job is no longer running")
+        _stop(rt, claimed)
     except TRANSIENT_ERRORS as exc:
-        raise _retry(task, rt, ctx, exc) from exc
+        raise _retry(task, rt, claimed, exc) from exc
     except SoftTimeLimitExceeded:
         limit = rt.settings.task_soft_time_limit_s
         fail_stage(rt, job_id, key, token, f"took longer than the {limit} s time limit")
@@ -134,12 +125,57 @@ def execute(task: Task, rt: Runtime, body: StageBody, job_id: str, key: str, tok
         fail_stage(rt, job_id, key, token, _message(exc))
 
 
+def run_unit(claimed: Claim, workdir: Path, rt: Runtime, progress: Progress) -> StageResult:
+    """Fetch what the unit reads and the videos it decodes; run it in `workdir`."""
+    entry = graph.stage(claimed.unit.stage)
+    videos: dict[int, dict[int, Path]] = {}
+    context = graph.StageContext(
+        workdir=workdir,
+        unit=claimed.unit,
+        params=claimed.params,
+        separation_m=claimed.separation_m,
+        camera_height_m=claimed.height_m,
+        videos=videos,
+        progress=progress,
+    )
+    probed = PROBE_JSON in entry.reads
+    if probed:  # first: the other names may depend on the planned chunks
+        fetch_artifact(rt.storage, claimed.job_id, PROBE_JSON, workdir)
+    units = context.units if probed else graph.plan(None, claimed.params)
+    for name in graph.reads(claimed.unit, units):
+        if name != PROBE_JSON:
+            fetch_artifact(rt.storage, claimed.job_id, name, workdir)
+    videos.update(_fetch_videos(claimed, entry, context.probe if probed else None, workdir, rt))
+    return graph.execute(entry, context)
+
+
+def _fetch_videos(
+    claimed: Claim, entry: graph.Stage, probe: StereoProbe | None, workdir: Path, rt: Runtime
+) -> dict[int, dict[int, Path]]:
+    """The input videos the unit decodes, verified, under their uploaded names."""
+    refs: list[InputRef] = []
+    if entry.videos == "all":
+        refs = list(claimed.inputs)
+    elif entry.videos == "chunk":
+        assert probe is not None and claimed.unit.camera is not None
+        chapters = graph.chunk_chapters(claimed.unit, probe, claimed.params)
+        refs = [
+            r for r in claimed.inputs if r.camera == claimed.unit.camera and r.chapter in chapters
+        ]
+    videos: dict[int, dict[int, Path]] = {}
+    for ref in refs:
+        # The team's own file name, so that the pipeline's error messages name it.
+        dest = workdir / "input" / f"cam{ref.camera}" / f"{ref.chapter:02d}" / ref.filename
+        videos.setdefault(ref.camera, {})[ref.chapter] = rt.cache.fetch(rt.storage, ref, dest)
+    return videos
+
+
 def _message(exc: BaseException) -> str:
     text = str(exc).strip()
     return text if text else type(exc).__name__
 
 
-def claim(rt: Runtime, job_id: str, key: str, token: str) -> StageContext | None:
+def claim(rt: Runtime, job_id: str, key: str, token: str) -> Claim | None:
     """Mark the stage running for this delivery; None if it must not run.
 
     A message whose token is not the row's is stale (the stage was reset or re-queued).
@@ -147,11 +183,12 @@ def claim(rt: Runtime, job_id: str, key: str, token: str) -> StageContext | None
     first delivery stopped before queueing what follows.
     """
     with transaction(rt.sessions) as session:
-        claimed = _claim_row(session, rt, job_id, key, token)
+        claimed = _claim_row(session, job_id, key, token)
     if claimed == DUPLICATE:
-        advance(rt.sessions, rt.storage, rt.send, job_id)
+        with rt.sessions() as session:
+            workflow.advance(session, rt.storage, rt.send, job_id)
         return None
-    if not isinstance(claimed, StageContext):
+    if not isinstance(claimed, Claim):
         return None
     if claimed.deliveries > rt.settings.max_attempts:
         message = (
@@ -166,51 +203,30 @@ def claim(rt: Runtime, job_id: str, key: str, token: str) -> StageContext | None
 DUPLICATE = "duplicate"
 
 
-def _claim_row(
-    session: Session, rt: Runtime, job_id: str, key: str, token: str
-) -> StageContext | str | None:
-    job = lock_job(session, job_id)
-    stage = _stage(session, job_id, key)
+def _claim_row(session: Session, job_id: str, key: str, token: str) -> Claim | str | None:
+    job = jobs.lock(session, job_id)
+    stage = jobs.stage(session, job_id, key)
     if job is None or stage is None or stage.queue_token != token:
         return None
     if stage.status == StageStatus.SUCCEEDED:
         return DUPLICATE
-    if job.status not in ACTIVE_JOB or stage.status not in (
+    if job.status not in states.ACTIVE_JOB or stage.status not in (
         StageStatus.QUEUED,
         StageStatus.RUNNING,
     ):
         return None
-    return _start(rt, job, stage)
-
-
-def _stage(session: Session, job_id: str, key: str) -> Stage | None:
-    query = select(Stage).where(Stage.job_id == uuid.UUID(job_id), Stage.key == key)
-    return session.scalars(query.with_for_update()).one_or_none()
-
-
-def _start(rt: Runtime, job: Job, stage: Stage) -> StageContext:
-    if stage.status == StageStatus.RUNNING:
-        stage.warnings = [*stage.warnings, f"attempt {stage.attempt}: the worker was lost"]
-    stage.status, stage.started_at, stage.finished_at = StageStatus.RUNNING, now(), None
-    stage.attempt += 1
-    stage.deliveries += 1
-    stage.progress = 0.0
-    if job.status == JobStatus.QUEUED:
-        job.status = JobStatus.RUNNING
-        job.started_at = job.started_at or now()
+    states.start_stage(stage)
+    states.start_job(job)
     inputs = tuple(
         InputRef(f.camera, f.chapter, f.filename, f.storage_key, f.size, f.sha256)
         for f in job.files
     )
-    return StageContext(
+    return Claim(
         job_id=str(job.id),
         stage_id=stage.id,
         key=stage.key,
-        name=stage.name,
+        unit=unit_of(stage),
         token=str(stage.queue_token),
-        camera=stage.camera,
-        start=stage.frame_start,
-        stop=stage.frame_stop,
         attempt=stage.attempt,
         deliveries=stage.deliveries,
         params=ProcessParams.model_validate(job.params),
@@ -227,8 +243,8 @@ class ProgressReporter:
     `StageCancelled` from inside the pipeline's progress callback.
     """
 
-    def __init__(self, rt: Runtime, ctx: StageContext) -> None:
-        self.rt, self.ctx = rt, ctx
+    def __init__(self, rt: Runtime, claimed: Claim) -> None:
+        self.rt, self.claimed = rt, claimed
         self.last = time.monotonic()
 
     def __call__(self, fraction: float) -> None:
@@ -237,29 +253,29 @@ class ProgressReporter:
         self.last = time.monotonic()
         try:
             with transaction(self.rt.sessions) as session:
-                stage = session.get(Stage, self.ctx.stage_id)
-                if not _is_current(session, stage, self.ctx):
+                stage = session.get(Stage, self.claimed.stage_id)
+                if not _is_current(session, stage, self.claimed):
                     raise StageCancelled
                 assert stage is not None
                 stage.progress = min(max(float(fraction), 0.0), 1.0)
         except OperationalError:
-            log.warning("could not record progress of %s", self.ctx.key, exc_info=True)
+            log.warning("could not record progress of %s", self.claimed.key, exc_info=True)
 
 
-def _is_current(session: Session, stage: Stage | None, ctx: StageContext) -> bool:
-    job = session.get(Job, uuid.UUID(ctx.job_id))
+def _is_current(session: Session, stage: Stage | None, claimed: Claim) -> bool:
+    job = session.get(Job, uuid.UUID(claimed.job_id))
     return (
         job is not None
-        and job.status in ACTIVE_JOB
+        and job.status in states.ACTIVE_JOB
         and stage is not None
-        and stage.queue_token == ctx.token
+        and stage.queue_token == claimed.token
         and stage.status == StageStatus.RUNNING
     )
 
 
-def _check_current(rt: Runtime, ctx: StageContext) -> None:
+def _check_current(rt: Runtime, claimed: Claim) -> None:
     with transaction(rt.sessions) as session:
-        if not _is_current(session, session.get(Stage, ctx.stage_id), ctx):
+        if not _is_current(session, session.get(Stage, claimed.stage_id), claimed):
             raise StageCancelled
 
 
@@ -288,72 +304,55 @@ def upload_outputs(
     return uploaded
 
 
-def json_safe(value: Any) -> Any:
-    """`value` as plain JSON (numpy scalars to numbers, NaN and infinities to null)."""
-
-    def default(obj: Any) -> Any:
-        if hasattr(obj, "tolist"):
-            return obj.tolist()
-        return str(obj)
-
-    def finite(obj: Any) -> Any:
-        if isinstance(obj, float):
-            return obj if math.isfinite(obj) else None
-        if isinstance(obj, dict):
-            return {str(k): finite(v) for k, v in obj.items()}
-        if isinstance(obj, list):
-            return [finite(v) for v in obj]
-        return obj
-
-    return finite(json.loads(json.dumps(value, default=default, allow_nan=True)))
-
-
-def succeed(rt: Runtime, ctx: StageContext, result: StageResult, uploaded: list[Uploaded]) -> None:
-    """Record the stage's success and its artifacts (one row per name, upserted)."""
+def succeed(rt: Runtime, claimed: Claim, result: StageResult, uploaded: list[Uploaded]) -> None:
+    """Record the stage's success, its artifacts (upserted by name) and the job's summary."""
     with transaction(rt.sessions) as session:
-        lock_job(session, ctx.job_id)
-        stage = session.get(Stage, ctx.stage_id, with_for_update=True)
-        if not _is_current(session, stage, ctx):
+        job = jobs.lock(session, claimed.job_id)
+        stage = session.get(Stage, claimed.stage_id, with_for_update=True)
+        if job is None or not _is_current(session, stage, claimed):
             raise StageCancelled
         assert stage is not None
-        stage.status, stage.progress, stage.finished_at = StageStatus.SUCCEEDED, 1.0, now()
-        stage.metrics = json_safe(result.metrics)
-        stage.warnings = [*stage.warnings, *map(str, result.warnings)]
-        stage.error = None
+        states.succeed_stage(stage, json_safe(result.metrics), [str(w) for w in result.warnings])
         for item in uploaded:
-            values = {
-                "job_id": uuid.UUID(ctx.job_id),
-                "stage_id": ctx.stage_id,
-                "name": item.name,
-                "storage_key": item.storage_key,
-                "size": item.size,
-                "content_type": item.content_type,
-            }
-            update = {k: values[k] for k in ("stage_id", "storage_key", "size", "content_type")}
-            session.execute(
-                insert(Artifact)
-                .values(**values)
-                .on_conflict_do_update(index_elements=["job_id", "name"], set_=update)
+            jobs.save_artifact(
+                session,
+                {
+                    "job_id": job.id,
+                    "stage_id": stage.id,
+                    "name": item.name,
+                    "storage_key": item.storage_key,
+                    "size": item.size,
+                    "content_type": item.content_type,
+                },
             )
+        job.summary = json_safe(job_summary(job))
+
+
+def job_summary(job: Job) -> dict:
+    """The run summary (`pipeline.summary`) of a job's succeeded stages."""
+    records = {
+        unit_of(s): StageResult(metrics=s.metrics, warnings=s.warnings)
+        for s in job.stages
+        if s.status == StageStatus.SUCCEEDED and s.frame_start is None
+    }
+    return summarise(records, ProcessParams.model_validate(job.params))
 
 
 def fail_stage(rt: Runtime, job_id: str, key: str, token: str, message: str) -> None:
     """Mark the stage failed with `message`; the job fails and says which stage and why."""
     with transaction(rt.sessions) as session:
-        job = lock_job(session, job_id)
-        stage = _stage(session, job_id, key)
+        job = jobs.lock(session, job_id)
+        stage = jobs.stage(session, job_id, key)
         if job is None or stage is None or stage.queue_token != token:
             return
-        stage.status, stage.error, stage.finished_at = StageStatus.FAILED, message, now()
-        if job.status in ACTIVE_JOB:
-            stop_job(job, JobStatus.FAILED, f"{describe(stage)} failed: {message}")
+        workflow.fail(job, stage, message)
 
 
-def _finish_stage(rt: Runtime, ctx: StageContext, status: StageStatus, error: str) -> None:
+def _stop(rt: Runtime, claimed: Claim) -> None:
     with transaction(rt.sessions) as session:
-        stage = session.get(Stage, ctx.stage_id, with_for_update=True)
-        if stage is not None and stage.queue_token == ctx.token:
-            stage.status, stage.error, stage.finished_at = status, error, now()
+        stage = session.get(Stage, claimed.stage_id, with_for_update=True)
+        if stage is not None and stage.queue_token == claimed.token:
+            states.stop_stage(stage, "stopped: the job is no longer running")
 
 
 def backoff_s(settings: Settings, attempt: int) -> float:
@@ -362,27 +361,29 @@ def backoff_s(settings: Settings, attempt: int) -> float:
     return delay * random.uniform(0.5, 1.0)
 
 
-def _retry(task: Task, rt: Runtime, ctx: StageContext | None, exc: BaseException) -> BaseException:
+def _retry(task: Task, rt: Runtime, claimed: Claim | None, exc: BaseException) -> BaseException:
     """Schedule another delivery after a transient error, or fail once attempts run out."""
-    attempt = ctx.deliveries if ctx else task.request.retries + 1
+    attempt = claimed.deliveries if claimed else task.request.retries + 1
     if attempt >= rt.settings.max_attempts:
-        if ctx is not None:
+        if claimed is not None:
             message = f"gave up after {attempt} attempts; last error: {_message(exc)}"
-            _record_quietly(lambda: fail_stage(rt, ctx.job_id, ctx.key, ctx.token, message))
+            _record_quietly(
+                lambda: fail_stage(rt, claimed.job_id, claimed.key, claimed.token, message)
+            )
         return exc
     delay = backoff_s(rt.settings, attempt)
-    if ctx is not None:
+    if claimed is not None:
         note = f"attempt {attempt}: {_message(exc)}; retrying in {delay:.0f} s"
-        _record_quietly(lambda: _requeue(rt, ctx, note))
+        _record_quietly(lambda: _requeue(rt, claimed, note))
     log.warning("transient error, retrying in %.0f s: %s", delay, exc)
     return task.retry(exc=exc, countdown=delay, max_retries=None)
 
 
-def _requeue(rt: Runtime, ctx: StageContext, note: str) -> None:
+def _requeue(rt: Runtime, claimed: Claim, note: str) -> None:
     with transaction(rt.sessions) as session:
-        stage = session.get(Stage, ctx.stage_id, with_for_update=True)
-        if stage is not None and stage.queue_token == ctx.token:
-            stage.status, stage.error = StageStatus.QUEUED, note
+        stage = session.get(Stage, claimed.stage_id, with_for_update=True)
+        if stage is not None and stage.queue_token == claimed.token:
+            states.retry_stage(stage, note)
 
 
 def _record_quietly(action: Callable[[], None]) -> None:

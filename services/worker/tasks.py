@@ -13,15 +13,14 @@ from celery import Task
 from celery.exceptions import TimeLimitExceeded
 from celery.signals import worker_process_init
 
+from pipeline.graph import STAGE_NAMES
 from services.core.db import make_engine, make_session_factory
 from services.core.settings import get_settings
 from services.core.storage import make_storage
-from services.core.workflow import STAGES
 from services.worker.celery_app import make_celery
 from services.worker.dispatch import sender, task_name
 from services.worker.inputs import InputCache
 from services.worker.runner import Runtime, execute, fail_stage
-from services.worker.stages import BODIES
 
 app = make_celery(get_settings())
 
@@ -59,14 +58,12 @@ class StageTask(Task):
 
 
 def _define(stage: str) -> Task:
-    body = BODIES[stage]
-
     def run_stage(self: Task, job_id: str, key: str, token: str) -> None:
-        execute(self, runtime(), body, job_id, key, token)
+        execute(self, runtime(), job_id, key, token)
 
     run_stage.__name__ = run_stage.__qualname__ = f"{stage}_stage"
     run_stage.__doc__ = f"The {stage} stage of a job."
     return app.task(name=task_name(stage), bind=True, base=StageTask)(run_stage)
 
 
-TASKS = {stage: _define(stage) for stage in STAGES}
+TASKS = {stage: _define(stage) for stage in STAGE_NAMES}

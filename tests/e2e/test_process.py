@@ -44,7 +44,7 @@ def test_accuracy_with_shipped_classifier(simulated, tmp_path, scenario: str, se
 
 def test_outputs_follow_the_contract(simulated, tmp_path) -> None:
     recording = simulated(scenario="clean", seed=3)
-    assert run_process(recording, tmp_path, "--height", "1.2") == 0
+    assert run_process(recording, tmp_path, "--camera-height", "1.2") == 0
     header = (tmp_path / "trajectories.csv").read_text().splitlines()[0]
     assert header.startswith(CONTRACT_HEADER)
     for camera in (1, 2):
@@ -96,9 +96,9 @@ def test_reconstruct_from_detections_equals_process(simulated, tmp_path) -> None
             str(processed / "flashes_cam1.csv"),
             "--flashes2",
             str(processed / "flashes_cam2.csv"),
-            "--width",
+            "--frame-width",
             "640",
-            "--height",
+            "--frame-height",
             "320",
             "--fps",
             "30",

@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from pipeline.flicker import FlickerParams, flicker_duty, flickering
+from pipeline.flicker import flicker_duty, flickering
+from pipeline.params import FlickerParams
 
 WIDTH, FPS = 640, 60.0
 

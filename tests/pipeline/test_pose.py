@@ -4,10 +4,10 @@ from scipy.spatial.transform import Rotation
 
 from pipeline.detections import Detections
 from pipeline.geometry import Pose, angle_between, bearing_to_pixel, rotation_angle
+from pipeline.params import PoseParams
 from pipeline.pose import (
     CalibrationPairs,
     PoseError,
-    PoseParams,
     calibration_pairs,
     essential_matrix_pose,
     estimate_pose,

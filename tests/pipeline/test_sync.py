@@ -2,7 +2,8 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from pipeline.sync import SyncError, SyncParams, clean_counts, estimate_delay
+from pipeline.params import SyncParams
+from pipeline.sync import SyncError, clean_counts, estimate_delay
 
 FPS = 30.0
 MAX_LAG = round(SyncParams().max_delay_s * FPS)

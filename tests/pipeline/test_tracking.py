@@ -12,19 +12,19 @@ import pytest
 from numpy.typing import NDArray
 from pydantic import ValidationError
 
+from pipeline.chunking import chunk_ranges, frames_read
 from pipeline.detections import Detections
+from pipeline.params import TrackingParams
+from pipeline.probe import VideoInfo
 from pipeline.tracking import (
     CLASSIFY_BATCH,
     PROGRESS_EVERY,
-    TrackingParams,
     _BlockEwma,
     _BoxMean,
-    chunk_ranges,
-    frames_read,
     track,
     track_with_stats,
 )
-from pipeline.video import VideoInfo, iter_frames, probe_video
+from pipeline.video import iter_frames, probe_video
 from tests.pipeline import video_factory as vf
 
 H, W, FPS = 320, 640, 30.0

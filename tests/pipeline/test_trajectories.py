@@ -2,7 +2,8 @@ import numpy as np
 import pytest
 from numpy.typing import ArrayLike
 
-from pipeline.trajectories import Linking, LinkingParams, _greedy_one_to_one, link
+from pipeline.params import LinkingParams
+from pipeline.trajectories import Linking, _greedy_one_to_one, link
 from pipeline.triangulate import Points3D
 
 FPS = 30.0

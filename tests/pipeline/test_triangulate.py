@@ -4,14 +4,8 @@ from scipy.spatial.transform import Rotation
 
 from pipeline.detections import Detections
 from pipeline.geometry import Pose, bearing_to_pixel
-from pipeline.triangulate import (
-    Points3D,
-    TriangulationParams,
-    candidate_pairs,
-    parallax,
-    triangulate,
-    validate_separation,
-)
+from pipeline.params import TriangulationParams, validate_separation
+from pipeline.triangulate import Points3D, candidate_pairs, parallax, triangulate
 
 WIDTH = 640
 SEPARATION = 1.5

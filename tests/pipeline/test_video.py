@@ -10,10 +10,9 @@ import av
 import numpy as np
 import pytest
 
+from pipeline.probe import VideoError, VideoInfo
 from pipeline.video import (
     Frame,
-    VideoError,
-    VideoInfo,
     YuvEncoding,
     check_stereo_pair,
     iter_frames,

@@ -292,7 +292,7 @@ def reference(recording: dict[int, list[Path]], tmp_path_factory: pytest.TempPat
     args = [str(Path(sys.executable).with_name("firefly3d")), "process", "--quiet"]
     args += [a for p in recording[1] for a in ("--cam1", str(p))]
     args += [a for p in recording[2] for a in ("--cam2", str(p))]
-    args += ["--separation", str(NIGHT["separation_m"]), "--height", str(NIGHT["height_m"])]
+    args += ["--separation", str(NIGHT["separation_m"]), "--camera-height", str(NIGHT["height_m"])]
     args += ["--params", str(params), "--out", str(tmp / "out")]
     result = subprocess.run(args, capture_output=True, text=True, cwd=ROOT)
     assert result.returncode == 0, result.stderr

@@ -12,10 +12,11 @@ from typing import Any
 import httpx
 from fastapi.testclient import TestClient
 
+from pipeline.graph import Unit
 from services.core.db import SessionFactory, transaction
 from services.core.models import Job, Night, Stage, Team
 from services.core.security import hash_token, new_team_token
-from services.core.workflow import new_stage
+from services.domain.workflow import new_stage
 
 TEST_ADMIN_TOKEN = "test-admin-token"
 #: Parameters of every test job: 6 s tracking chunks, so each camera has 4 in 20 s.
@@ -173,7 +174,7 @@ def queued_stage(
             status="running",
             params={"classifier": {"enabled": False}},
         )
-        stage = new_stage("sync")
+        stage = new_stage(Unit("sync"))
         stage.status, stage.queue_token, stage.deliveries = status, token, deliveries
         job.stages = [stage]
         session.add(job)

@@ -1,4 +1,4 @@
-"""``/api/v1/admin``: failed jobs and re-runs (admin token)."""
+"""``/api/v1/admin``: every team's jobs and re-runs (admin token)."""
 
 from __future__ import annotations
 
@@ -7,10 +7,11 @@ from typing import Annotated
 
 from fastapi import APIRouter, Query
 
-from services.api import admin
-from services.api.deps import AdminDep, SendDep, SessionDep, SessionsDep, StorageDep
+from services.api import views
+from services.api.deps import AdminDep, SendDep, SessionDep, StorageDep
 from services.api.schemas import AdminJobOut, RerunOut, RerunRequest
 from services.core.models import JobStatus
+from services.domain import admin
 
 router = APIRouter(prefix="/admin", tags=["admin"])
 
@@ -23,7 +24,8 @@ def list_jobs(
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
 ) -> list[AdminJobOut]:
     """Jobs of every team, most recently changed first."""
-    return admin.list_jobs(session, status, limit)
+    rows = admin.list_jobs(session, status, limit)
+    return [views.admin_job_out(job, night, team) for job, night, team in rows]
 
 
 @router.post("/jobs/{job_id}/rerun")
@@ -32,7 +34,6 @@ def rerun_job(
     body: RerunRequest,
     _: AdminDep,
     session: SessionDep,
-    sessions: SessionsDep,
     storage: StorageDep,
     send: SendDep,
 ) -> RerunOut:
@@ -40,17 +41,16 @@ def rerun_job(
 
     Earlier stages are not run again: their rows and artifacts are reused.
     """
-    return admin.rerun_job(session, sessions, storage, send, job_id, body)
+    start = admin.rerun_job(session, storage, send, job_id, body.from_stage, body.params)
+    return RerunOut(job_id=job_id, from_stage=start, status=JobStatus.QUEUED)
 
 
 @router.post("/nights/{night_id}/rerun-failed")
 def rerun_failed(
-    night_id: uuid.UUID,
-    _: AdminDep,
-    session: SessionDep,
-    sessions: SessionsDep,
-    storage: StorageDep,
-    send: SendDep,
+    night_id: uuid.UUID, _: AdminDep, session: SessionDep, storage: StorageDep, send: SendDep
 ) -> list[RerunOut]:
     """Re-run every failed job of a night from its first unfinished stage."""
-    return admin.rerun_failed(session, sessions, storage, send, night_id)
+    return [
+        RerunOut(job_id=job_id, from_stage=start, status=JobStatus.QUEUED)
+        for job_id, start in admin.rerun_failed(session, storage, send, night_id)
+    ]

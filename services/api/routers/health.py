@@ -8,9 +8,9 @@ from celery import Celery
 from fastapi import APIRouter, Request
 from fastapi.responses import JSONResponse
 from sqlalchemy import text
+from sqlalchemy.orm import Session
 
-from services.api.deps import SessionsDep, StorageDep
-from services.core.db import SessionFactory
+from services.api.deps import SessionDep, StorageDep
 
 router = APIRouter(tags=["health"])
 
@@ -21,9 +21,8 @@ def healthz() -> dict[str, str]:
     return {"status": "ok"}
 
 
-def _database(sessions: SessionFactory) -> None:
-    with sessions() as session:
-        session.execute(text("SELECT 1"))
+def _database(session: Session) -> None:
+    session.execute(text("SELECT 1"))
 
 
 def _broker(celery: Celery) -> None:
@@ -40,10 +39,10 @@ def _status(check: Callable[[], None]) -> str:
 
 
 @router.get("/readyz", responses={503: {"description": "a dependency is unreachable"}})
-def readyz(request: Request, sessions: SessionsDep, storage: StorageDep) -> JSONResponse:
+def readyz(request: Request, session: SessionDep, storage: StorageDep) -> JSONResponse:
     """Database, broker and storage all reachable (200), or which is not (503)."""
     checks = {
-        "database": _status(lambda: _database(sessions)),
+        "database": _status(lambda: _database(session)),
         "broker": _status(lambda: _broker(request.app.state.celery)),
         "storage": _status(storage.check),
     }

@@ -3,22 +3,23 @@
 from __future__ import annotations
 
 import uuid
+from collections.abc import AsyncIterator
 from typing import Annotated
 
 from fastapi import APIRouter, Path, Request, status
-from fastapi.responses import Response
+from fastapi.responses import RedirectResponse, Response
+from starlette.requests import ClientDisconnect
 
-from services.api import artifacts, jobs, uploads
+from services.api import views
 from services.api.deps import (
     PrincipalDep,
     SendDep,
     SessionDep,
-    SessionsDep,
     SettingsDep,
     StorageDep,
     TeamDep,
-    job_for,
 )
+from services.api.routers.downloads import stream_response
 from services.api.schemas import (
     ArtifactOut,
     FileDeclaration,
@@ -28,7 +29,8 @@ from services.api.schemas import (
     PartsRequest,
     PartsSigned,
 )
-from services.core import workflow
+from services.domain import access, downloads, jobs, uploads, workflow
+from services.domain.errors import Invalid
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
 
@@ -47,15 +49,16 @@ def create_job(
     body: JobCreate, team: TeamDep, session: SessionDep, settings: SettingsDep, storage: StorageDep
 ) -> JobOut:
     """Declare a stereo pair's chapter files; the answer says how to upload each."""
-    return jobs.job_out(jobs.create_job(session, settings, team, body), storage)
+    job = jobs.create_job(session, settings, team, body.night_id, body.files, body.params)
+    return views.job_out(job, storage)
 
 
 @router.get("/{job_id}")
 def get_job(
     job_id: uuid.UUID, principal: PrincipalDep, session: SessionDep, storage: StorageDep
 ) -> JobOut:
-    """Status, per-stage progress, errors and headline metrics."""
-    return jobs.job_out(job_for(session, principal, job_id), storage)
+    """Status, per-stage progress, errors and the run summary so far."""
+    return views.job_out(access.visible_job(session, principal, job_id), storage)
 
 
 @router.post("/{job_id}/submit")
@@ -63,30 +66,23 @@ def submit_job(
     job_id: uuid.UUID,
     principal: PrincipalDep,
     session: SessionDep,
-    sessions: SessionsDep,
     storage: StorageDep,
     send: SendDep,
 ) -> JobOut:
     """Queue a job whose files are all uploaded (its inputs are verified by the probe stage)."""
-    job_for(session, principal, job_id)
-    workflow.submit(sessions, storage, send, job_id)
-    session.expire_all()
-    return jobs.job_out(job_for(session, principal, job_id), storage)
+    access.visible_job(session, principal, job_id)
+    workflow.submit(session, storage, send, job_id)
+    return views.job_out(access.visible_job(session, principal, job_id), storage)
 
 
 @router.post("/{job_id}/cancel")
 def cancel_job(
-    job_id: uuid.UUID,
-    principal: PrincipalDep,
-    session: SessionDep,
-    sessions: SessionsDep,
-    storage: StorageDep,
+    job_id: uuid.UUID, principal: PrincipalDep, session: SessionDep, storage: StorageDep
 ) -> JobOut:
     """Stop a job; running stages stop at their next progress report."""
-    job_for(session, principal, job_id)
-    workflow.cancel(sessions, job_id)
-    session.expire_all()
-    return jobs.job_out(job_for(session, principal, job_id), storage)
+    access.visible_job(session, principal, job_id)
+    workflow.cancel(session, job_id)
+    return views.job_out(access.visible_job(session, principal, job_id), storage)
 
 
 @router.get("/{job_id}/files/{camera}/{chapter}")
@@ -99,8 +95,18 @@ def get_file(
     storage: StorageDep,
 ) -> FileStatus:
     """Upload state of one file: bytes received, multipart parts stored (to resume)."""
-    job = job_for(session, principal, job_id)
-    return uploads.file_status(job, uploads.input_file(job, camera, chapter), storage)
+    job = access.visible_job(session, principal, job_id)
+    file = uploads.input_file(job, camera, chapter)
+    return views.file_status(uploads.progress(job, file, storage), storage)
+
+
+async def _body(request: Request) -> AsyncIterator[bytes]:
+    """The request body; it ends where the client went away."""
+    try:
+        async for chunk in request.stream():
+            yield chunk
+    except ClientDisconnect:
+        return
 
 
 @router.put("/{job_id}/files/{camera}/{chapter}", openapi_extra=CHUNK_UPLOAD)
@@ -110,13 +116,21 @@ async def put_file(
     camera: Camera,
     chapter: Chapter,
     principal: PrincipalDep,
-    sessions: SessionsDep,
+    session: SessionDep,
     storage: StorageDep,
 ) -> FileStatus:
     """Stream a file, or a ``Content-Range`` piece of it, to local storage."""
-    return await uploads.stream_upload(
-        request, sessions, storage, principal, job_id, camera, chapter
+    upload = await uploads.stream_upload(
+        session,
+        storage,
+        principal,
+        job_id,
+        camera,
+        chapter,
+        request.headers.get("content-range"),
+        _body(request),
     )
+    return views.file_status(upload, storage)
 
 
 @router.post("/{job_id}/files/{camera}/{chapter}/parts")
@@ -131,9 +145,10 @@ def sign_parts(
     storage: StorageDep,
 ) -> PartsSigned:
     """Presigned URLs to PUT parts of a multipart upload straight to S3."""
-    job = job_for(session, principal, job_id)
+    job = access.visible_job(session, principal, job_id)
     file = uploads.input_file(job, camera, chapter)
-    return uploads.sign_parts(session, settings, storage, job, file, body.part_numbers)
+    signed = uploads.sign_parts(session, settings, storage, job, file, body.part_numbers)
+    return views.parts_signed(signed)
 
 
 @router.post("/{job_id}/files/{camera}/{chapter}/complete")
@@ -146,10 +161,9 @@ def complete_file(
     storage: StorageDep,
 ) -> FileStatus:
     """Finish a multipart upload once every part is stored."""
-    job = job_for(session, principal, job_id)
-    return uploads.complete_multipart(
-        session, storage, job, uploads.input_file(job, camera, chapter)
-    )
+    job = access.visible_job(session, principal, job_id)
+    file = uploads.input_file(job, camera, chapter)
+    return views.file_status(uploads.complete_multipart(session, storage, job, file), storage)
 
 
 @router.post("/{job_id}/files/{camera}/{chapter}/replace")
@@ -164,9 +178,14 @@ def replace_file(
     storage: StorageDep,
 ) -> FileStatus:
     """Declare a different file for a chapter of a job that is not running, to upload anew."""
-    job = job_for(session, principal, job_id)
+    job = access.visible_job(session, principal, job_id)
     file = uploads.input_file(job, camera, chapter)
-    return uploads.replace_file(session, settings, storage, job, file, body)
+    if (body.camera, body.chapter) != (file.camera, file.chapter):
+        raise Invalid(["body"], "camera and chapter must match the URL")
+    upload = uploads.replace_file(
+        session, settings, storage, job, file, body.filename, body.size, body.sha256
+    )
+    return views.file_status(upload, storage)
 
 
 @router.get("/{job_id}/artifacts")
@@ -178,7 +197,8 @@ def list_artifacts(
     storage: StorageDep,
 ) -> list[ArtifactOut]:
     """Every file the job's stages wrote, with a short-lived download link each."""
-    return artifacts.list_artifacts(settings, storage, job_for(session, principal, job_id))
+    job = access.visible_job(session, principal, job_id)
+    return views.artifacts_out(settings, storage, job)
 
 
 @router.get(
@@ -195,5 +215,8 @@ def get_artifact(
     storage: StorageDep,
 ) -> Response:
     """Download an artifact: a redirect to a presigned URL, or the file streamed."""
-    artifact = artifacts.find_artifact(job_for(session, principal, job_id), name)
-    return artifacts.artifact_response(settings, storage, artifact)
+    artifact = downloads.find_artifact(access.visible_job(session, principal, job_id), name)
+    target = downloads.artifact_download(settings, storage, artifact)
+    if isinstance(target, str):
+        return RedirectResponse(target, status.HTTP_307_TEMPORARY_REDIRECT)
+    return stream_response(target)

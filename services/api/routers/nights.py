@@ -6,9 +6,10 @@ import uuid
 
 from fastapi import APIRouter, status
 
-from services.api import nights
-from services.api.deps import PrincipalDep, SessionDep, TeamDep, night_for
+from services.api import views
+from services.api.deps import PrincipalDep, SessionDep, TeamDep
 from services.api.schemas import NightCreate, NightOut
+from services.domain import access, nights
 
 router = APIRouter(prefix="/nights", tags=["nights"])
 
@@ -16,16 +17,16 @@ router = APIRouter(prefix="/nights", tags=["nights"])
 @router.post("", status_code=status.HTTP_201_CREATED)
 def create_night(body: NightCreate, team: TeamDep, session: SessionDep) -> NightOut:
     """Record a night: site, date, location and the cameras' separation and height."""
-    return nights.night_out(nights.create_night(session, team, body))
+    return views.night_out(nights.create_night(session, team, body.model_dump()))
 
 
 @router.get("")
 def list_nights(team: TeamDep, session: SessionDep) -> list[NightOut]:
     """The calling team's nights, latest first."""
-    return [nights.night_out(n) for n in nights.list_nights(session, team)]
+    return [views.night_out(n) for n in nights.list_nights(session, team)]
 
 
 @router.get("/{night_id}")
 def get_night(night_id: uuid.UUID, principal: PrincipalDep, session: SessionDep) -> NightOut:
     """One night with its jobs."""
-    return nights.night_out(night_for(session, principal, night_id))
+    return views.night_out(access.visible_night(session, principal, night_id))

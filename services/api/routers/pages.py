@@ -13,7 +13,7 @@ from fastapi import APIRouter, Request
 from fastapi.responses import HTMLResponse
 from fastapi.templating import Jinja2Templates
 
-from services.core.workflow import STAGES
+from pipeline.graph import STAGE_NAMES
 
 templates = Jinja2Templates(directory=Path(__file__).resolve().parent.parent / "templates")
 router = APIRouter(include_in_schema=False)
@@ -31,4 +31,5 @@ def job_page(request: Request, job_id: uuid.UUID) -> HTMLResponse:
 
 @router.get("/admin", response_class=HTMLResponse)
 def admin_page(request: Request) -> HTMLResponse:
-    return templates.TemplateResponse(request, "admin.html", {"title": "Admin", "stages": STAGES})
+    context = {"title": "Admin", "stages": STAGE_NAMES}
+    return templates.TemplateResponse(request, "admin.html", context)

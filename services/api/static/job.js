@@ -9,6 +9,16 @@ function stageLabel(stage) {
   return stage.camera ? `${stage.name} camera ${stage.camera}` : stage.name;
 }
 
+// The run summary as "section.key" rows; the parameters are on the job already.
+const NOT_SHOWN = ["parameters", "warnings"];
+
+function flatten(value, prefix = "") {
+  if (value === null || typeof value !== "object" || Array.isArray(value)) return [[prefix, value]];
+  return Object.entries(value)
+    .filter(([key]) => !(prefix === "" && NOT_SHOWN.includes(key)))
+    .flatMap(([key, inner]) => flatten(inner, prefix ? `${prefix}.${key}` : key));
+}
+
 function showJob(job) {
   const statusNode = $("job-status");
   statusNode.textContent = job.status;
@@ -25,7 +35,7 @@ function showJob(job) {
     el("td", {}, String(stage.attempt)),
     el("td", {}, el("progress", { max: "1", value: String(stage.progress) })),
     el("td", {}, stage.error || stage.warnings.join("; ")))));
-  const summary = Object.entries(job.summary);
+  const summary = flatten(job.summary).filter(([, value]) => value !== null);
   $("summary").hidden = !summary.length;
   $("summary-list").replaceChildren(...summary.flatMap(([key, value]) => [
     el("dt", {}, key), el("dd", {}, typeof value === "number" ? String(+value.toFixed(4)) : JSON.stringify(value))]));

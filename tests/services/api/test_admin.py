@@ -8,7 +8,7 @@ import pytest
 
 from services.core.db import transaction
 from services.core.models import Job
-from services.core.workflow import stop_job
+from services.domain.states import finish_job
 from tests.services.conftest import Service
 from tests.services.helpers import TEST_ADMIN_TOKEN, auth, create_night, make_team
 
@@ -29,7 +29,8 @@ def failed_job(api_service: Service) -> dict:
     ).json()
     with transaction(api_service.sessions) as session:
         row = session.get_one(Job, uuid.UUID(job["id"]))
-        stop_job(row, "failed", "probe failed: GS010001.mp4: not a video")
+        row.status = "running"  # as if it had been submitted
+        finish_job(row, "failed", "probe failed: GS010001.mp4: not a video")
     return {**job, "token": token}
 
 

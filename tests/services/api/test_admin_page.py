@@ -6,9 +6,13 @@ import uuid
 
 from playwright.sync_api import Browser
 
+from pipeline.graph import plan
+from pipeline.params import ProcessParams
+from pipeline.probe import StereoProbe
 from services.core.db import transaction
 from services.core.models import Job
-from services.core.workflow import static_stages, stop_job, track_stages
+from services.domain.states import finish_job
+from services.domain.workflow import new_stage
 from tests.services.api.test_pages import browser  # noqa: F401  (the fixture)
 from tests.services.conftest import LiveServer, Service
 from tests.services.helpers import TEST_ADMIN_TOKEN, auth, create_night, make_team
@@ -30,12 +34,13 @@ def failed_job(service: Service) -> str:
         row = session.get_one(Job, uuid.UUID(job["id"]))
         for file in row.files:
             file.upload_state = "uploaded"
-        row.stages = static_stages() + track_stages([(1, 0, 600), (2, 0, 600)])
+        probe = StereoProbe(width=640, height=320, fps=30.0, n_frames={1: 600, 2: 600})
+        row.stages = [new_stage(u) for u in plan(probe, ProcessParams())]  # one chunk each
         for stage in row.stages:
             stage.status = "succeeded" if stage.name in ("probe", "track", "merge") else "pending"
         row.status = "running"
         next(s for s in row.stages if s.name == "sync").status = "failed"
-        stop_job(row, "failed", "sync failed: no flash seen by both cameras")
+        finish_job(row, "failed", "sync failed: no flash seen by both cameras")
     return str(job["id"])
 
 

@@ -11,7 +11,7 @@ import httpx
 import pytest
 from playwright.sync_api import Browser, Page, sync_playwright
 
-from pipeline.artifacts import TRAJECTORIES_CSV
+from pipeline.artifacts import SUMMARY_JSON, TRAJECTORIES_CSV
 from tests.services.conftest import LiveServer, Service
 from tests.services.helpers import NIGHT, TEST_PARAMS, auth, create_job, make_team
 
@@ -75,6 +75,17 @@ def check_job_page(page: Page, server: LiveServer, reference: Path) -> None:
     rows = page.locator("#stages tbody tr")
     assert rows.count() == 16  # 8 stages + 4 tracking chunks per camera
     assert set(page.locator("#stages tbody tr td:nth-child(2)").all_inner_texts()) == {"succeeded"}
+    shown = dict(
+        zip(
+            page.locator("#summary-list dt").all_inner_texts(),
+            page.locator("#summary-list dd").all_inner_texts(),
+            strict=True,
+        )
+    )
+    summary = json.loads((reference / SUMMARY_JSON).read_text())
+    assert shown["counts.trajectories"] == str(summary["counts"]["trajectories"])
+    flooded = summary["tracking"]["cam1"]["flooded_frames"]
+    assert shown["tracking.cam1.flooded_frames"] == str(flooded)  # what tracking dropped
     link = page.locator("#results a", has_text=TRAJECTORIES_CSV)
     with page.expect_download() as download:
         link.click()

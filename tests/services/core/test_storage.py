@@ -11,14 +11,14 @@ import httpx
 import pytest
 
 from services.core.storage import (
-    LocalStorage,
     MissingObjectError,
-    S3Storage,
     Storage,
     StorageError,
     TransientStorageError,
     sha256_file,
 )
+from services.core.storage.local import LocalStorage
+from services.core.storage.s3 import S3Storage
 from tests.services.conftest import BUCKET, free_port
 
 

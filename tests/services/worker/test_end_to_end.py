@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
 
-from pipeline.artifacts import CALIBRATION_JSON, TRAJECTORIES_CSV, flashes_name
+from pipeline.artifacts import CALIBRATION_JSON, SUMMARY_JSON, TRAJECTORIES_CSV, flashes_name
 from tests.services.conftest import Service, WorkerProcess
 from tests.services.helpers import (
+    auth,
     create_job,
     download,
     make_team,
@@ -18,6 +20,7 @@ from tests.services.helpers import (
 )
 
 pytestmark = pytest.mark.slow
+TIMES = ("seconds", "fps")
 COMPARED = (TRAJECTORIES_CSV, CALIBRATION_JSON, flashes_name(1), flashes_name(2))
 
 
@@ -38,7 +41,26 @@ def check_outputs(service: Service, token: str, job: dict, reference: Path) -> N
     assert len(tracks) == 8  # 4 chunks of 6 s per camera
     assert all(s["status"] == "succeeded" and s["attempt"] == 1 for s in job["stages"])
     assert job["progress"] == pytest.approx(1.0)
-    assert job["summary"]["n_trajectories"] > 0
+    assert job["summary"]["counts"]["trajectories"] > 0
+    check_same_graph_and_summary(service, token, job, reference)
+
+
+def check_same_graph_and_summary(service: Service, token: str, job: dict, reference: Path) -> None:
+    """The worker ran the units the CLI ran (one metrics file each), with one summary."""
+    response = service.client.get(f"/api/v1/jobs/{job['id']}/artifacts", headers=auth(token))
+    recorded = {a["name"] for a in response.json() if a["name"].endswith(".json")}
+    by_service = {n for n in recorded if n.startswith(("work/metrics/", "work/tracking/"))}
+    by_cli = {
+        p.relative_to(reference).as_posix()
+        for p in [*reference.glob("work/metrics/*.json"), *reference.glob("work/tracking/*/*.json")]
+    }
+    assert by_service == by_cli and len(by_cli) == 16  # probe, 8 chunks, 2 merges, 5 more
+    cli_summary = json.loads((reference / SUMMARY_JSON).read_text())
+    for key in ("counts", "delay_frames", "delay_confidence", "rotation", "translation"):
+        assert job["summary"][key] == cli_summary[key], key
+    for camera in ("cam1", "cam2"):
+        stats = {k: v for k, v in job["summary"]["tracking"][camera].items() if k not in TIMES}
+        assert stats == {k: v for k, v in cli_summary["tracking"][camera].items() if k not in TIMES}
 
 
 def test_stream_upload_to_local_storage(

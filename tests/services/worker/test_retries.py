@@ -12,12 +12,13 @@ import pytest
 from celery import Celery, Task
 from celery.result import EagerResult
 
-from pipeline.run import StageResult
+from pipeline.graph import StageResult
 from services.core.db import SessionFactory
 from services.core.settings import Settings
-from services.core.storage import LocalStorage, TransientStorageError
+from services.core.storage import TransientStorageError
+from services.core.storage.local import LocalStorage
 from services.worker.inputs import InputCache
-from services.worker.runner import Progress, Runtime, StageBody, StageContext, execute
+from services.worker.runner import Claim, Progress, Runtime, StageBody, execute
 from tests.services.helpers import queued_stage, stage_row
 
 
@@ -28,7 +29,7 @@ def run_once(rt: Runtime, body: StageBody, job_id: str, key: str, token: str) ->
 
     @app.task(bind=True)
     def stage(self: Task, job_id: str, key: str, token: str) -> None:
-        execute(self, rt, body, job_id, key, token)
+        execute(self, rt, job_id, key, token, body)
 
     return stage.apply(args=[job_id, key, token])
 
@@ -48,7 +49,7 @@ def rt(sessions: SessionFactory, tmp_path: Path) -> Runtime:
 def flaky(failures: int) -> tuple[StageBody, list[int]]:
     calls: list[int] = []
 
-    def body(ctx: StageContext, workdir: Path, rt: Runtime, progress: Progress) -> StageResult:
+    def body(ctx: Claim, workdir: Path, rt: Runtime, progress: Progress) -> StageResult:
         calls.append(ctx.attempt)
         if len(calls) <= failures:
             raise TransientStorageError("S3 SlowDown on jobs/x/work/probe.json")
@@ -83,7 +84,7 @@ def test_other_errors_fail_at_once(rt: Runtime, sessions: SessionFactory) -> Non
     job_id, key, token = queued_stage(sessions)
     calls: list[int] = []
 
-    def body(ctx: StageContext, workdir: Path, rt: Runtime, progress: Progress) -> StageResult:
+    def body(ctx: Claim, workdir: Path, rt: Runtime, progress: Progress) -> StageResult:
         calls.append(ctx.attempt)
         raise ValueError("GS010001.mp4: the video stream has no frames (empty video)")
 

@@ -9,13 +9,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from pipeline.jsonio import json_safe
 from services.core.db import SessionFactory
 from services.core.models import Job
 from services.core.settings import Settings
-from services.core.storage import LocalStorage, sha256_file
-from services.core.workflow import StageMessage
+from services.core.storage import sha256_file
+from services.core.storage.local import LocalStorage
+from services.domain.workflow import StageMessage
 from services.worker.inputs import InputCache, InputError, InputRef
-from services.worker.runner import Runtime, backoff_s, claim, json_safe
+from services.worker.runner import Runtime, backoff_s, claim
 from tests.services.helpers import queued_stage, stage_row
 
 

@@ -5,18 +5,25 @@ from __future__ import annotations
 import datetime as dt
 import uuid
 from collections import Counter
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any, TypeVar
 
 import pytest
 
 from pipeline.artifacts import PROBE_JSON
-from pipeline.results import StereoProbe
-from services.core import workflow
+from pipeline.graph import STAGE_NAMES
+from pipeline.params import ProcessParams
+from pipeline.probe import StereoProbe
 from services.core.db import SessionFactory, transaction
 from services.core.models import Artifact, InputFile, Job, Night, Stage, Team
-from services.core.storage import LocalStorage
-from services.core.workflow import EnqueueError, StageMessage, WorkflowError
+from services.core.storage.local import LocalStorage
+from services.domain import workflow
+from services.domain.errors import Conflict
+from services.domain.states import finish_job
+from services.domain.workflow import EnqueueError, StageMessage
 
+T = TypeVar("T")
 PARAMS = {"chunk_s": 6, "tracking": {"block_s": 6}, "classifier": {"enabled": False}}
 
 
@@ -42,8 +49,6 @@ def storage(tmp_path: Path) -> LocalStorage:
 @pytest.fixture
 def job_id(sessions: SessionFactory, storage: LocalStorage, tmp_path: Path) -> uuid.UUID:
     """An uploaded job whose probe says: 600 frames per camera at 30 fps."""
-    from pipeline.run import ProcessParams
-
     params = ProcessParams.model_validate(PARAMS).model_dump(mode="json")
     with transaction(sessions) as session:
         team = Team(name=f"wf-{uuid.uuid4().hex[:8]}", token_hash=uuid.uuid4().hex)
@@ -70,6 +75,12 @@ def job_id(sessions: SessionFactory, storage: LocalStorage, tmp_path: Path) -> u
     return job.id
 
 
+def call(sessions: SessionFactory, action: Callable[..., T], *args: Any) -> T:
+    """A workflow action in a session of its own, as a request or a task would run it."""
+    with sessions() as session:
+        return action(session, *args)
+
+
 def statuses(sessions: SessionFactory, job_id: uuid.UUID) -> dict[str, str]:
     with sessions() as session:
         return {s.key: s.status for s in session.get_one(Job, job_id).stages}
@@ -88,12 +99,12 @@ def test_stages_run_in_dependency_order(
     sessions: SessionFactory, storage: LocalStorage, job_id: uuid.UUID
 ) -> None:
     broker = Broker()
-    workflow.submit(sessions, storage, broker, job_id)
+    call(sessions, workflow.submit, storage, broker, job_id)
     assert broker.take() == ["probe"]
     assert Counter(statuses(sessions, job_id).values()) == {"queued": 1, "pending": 7}
 
     finish(sessions, job_id, ["probe"])
-    workflow.advance(sessions, storage, broker, job_id)
+    call(sessions, workflow.advance, storage, broker, job_id)
     chunks = [
         f"track/cam{c}/{a:08d}-{b:08d}"
         for c in (1, 2)
@@ -102,10 +113,10 @@ def test_stages_run_in_dependency_order(
     assert sorted(broker.take()) == sorted(chunks)
 
     finish(sessions, job_id, chunks[:4])  # camera 1 done: only its merge may start
-    workflow.advance(sessions, storage, broker, job_id)
+    call(sessions, workflow.advance, storage, broker, job_id)
     assert broker.take() == ["merge/cam1"]
     finish(sessions, job_id, [*chunks[4:], "merge/cam1"])
-    workflow.advance(sessions, storage, broker, job_id)
+    call(sessions, workflow.advance, storage, broker, job_id)
     assert broker.take() == ["merge/cam2"]
 
     for previous, following in [
@@ -116,11 +127,11 @@ def test_stages_run_in_dependency_order(
         ("link", "report"),
     ]:
         finish(sessions, job_id, [previous])
-        workflow.advance(sessions, storage, broker, job_id)
-        workflow.advance(sessions, storage, broker, job_id)  # idempotent: queued once
+        call(sessions, workflow.advance, storage, broker, job_id)
+        call(sessions, workflow.advance, storage, broker, job_id)  # idempotent: queued once
         assert broker.take() == [following]
     finish(sessions, job_id, ["report"])
-    workflow.advance(sessions, storage, broker, job_id)
+    call(sessions, workflow.advance, storage, broker, job_id)
     with sessions() as session:
         job = session.get_one(Job, job_id)
         assert job.status == "succeeded" and job.finished_at is not None
@@ -131,13 +142,13 @@ def test_messages_carry_a_fresh_token_per_queueing(
     sessions: SessionFactory, storage: LocalStorage, job_id: uuid.UUID
 ) -> None:
     broker = Broker()
-    workflow.submit(sessions, storage, broker, job_id)
+    call(sessions, workflow.submit, storage, broker, job_id)
     (message,) = broker.sent
     with sessions() as session:
         probe = next(s for s in session.get_one(Job, job_id).stages if s.key == "probe")
         assert (message.job_id, message.token) == (str(job_id), probe.queue_token)
-    with pytest.raises(WorkflowError, match="only a new job can be submitted"):
-        workflow.submit(sessions, storage, broker, job_id)
+    with pytest.raises(Conflict, match="only a new job can be submitted"):
+        call(sessions, workflow.submit, storage, broker, job_id)
 
 
 def test_broker_refusal_puts_stages_back_to_pending(
@@ -147,23 +158,23 @@ def test_broker_refusal_puts_stages_back_to_pending(
         raise ConnectionError("redis is down")
 
     with pytest.raises(EnqueueError, match="redis is down"):
-        workflow.submit(sessions, storage, refuse, job_id)
+        call(sessions, workflow.submit, storage, refuse, job_id)
     assert statuses(sessions, job_id)["probe"] == "pending"
     broker = Broker()
-    workflow.advance(sessions, storage, broker, job_id)  # a later advance recovers
+    call(sessions, workflow.advance, storage, broker, job_id)  # a later advance recovers
     assert broker.take() == ["probe"]
 
 
 def test_cancel_stops_waiting_stages(
     sessions: SessionFactory, storage: LocalStorage, job_id: uuid.UUID
 ) -> None:
-    workflow.submit(sessions, storage, Broker(), job_id)
-    workflow.cancel(sessions, job_id)
+    call(sessions, workflow.submit, storage, Broker(), job_id)
+    call(sessions, workflow.cancel, job_id)
     assert set(statuses(sessions, job_id).values()) == {"cancelled"}
     with sessions() as session:
         assert all(s.queue_token is None for s in session.get_one(Job, job_id).stages)
-    with pytest.raises(WorkflowError, match="already finished"):
-        workflow.cancel(sessions, job_id)
+    with pytest.raises(Conflict, match="already finished"):
+        call(sessions, workflow.cancel, job_id)
 
 
 def add_artifact(
@@ -198,16 +209,16 @@ def run_to_failure(
 ) -> None:
     """Submit, succeed every stage before `failing`, fail it."""
     broker = Broker()
-    workflow.submit(sessions, storage, broker, job_id)
+    call(sessions, workflow.submit, storage, broker, job_id)
     while keys := broker.take():
         if failing in keys:
             with transaction(sessions) as session:
                 job = session.get_one(Job, job_id)
                 next(s for s in job.stages if s.key == failing).status = "failed"
-                workflow.stop_job(job, "failed", f"{failing} failed")
+                finish_job(job, "failed", f"{failing} failed")
             return
         finish(sessions, job_id, keys)
-        workflow.advance(sessions, storage, broker, job_id)
+        call(sessions, workflow.advance, storage, broker, job_id)
 
 
 def test_rerun_reuses_earlier_stages(
@@ -220,7 +231,7 @@ def test_rerun_reuses_earlier_stages(
         before = {s.key: (s.attempt, s.status) for s in session.get_one(Job, job_id).stages}
 
     broker = Broker()
-    assert workflow.rerun(sessions, storage, broker, job_id) == "pose"
+    assert call(sessions, workflow.rerun, storage, broker, job_id) == "pose"
     assert broker.take() == ["pose"]
     with sessions() as session:
         job = session.get_one(Job, job_id)
@@ -233,16 +244,16 @@ def test_rerun_reuses_earlier_stages(
         else:
             assert after[key] == (attempt, status) == (1, "succeeded")
     assert storage.size(kept) is not None and storage.size(stale) is None
-    with pytest.raises(WorkflowError, match="only a finished job can re-run"):
-        workflow.rerun(sessions, storage, broker, job_id)
+    with pytest.raises(Conflict, match="only a finished job can re-run"):
+        call(sessions, workflow.rerun, storage, broker, job_id)
 
 
 def test_rerun_cannot_skip_an_unfinished_stage(
     sessions: SessionFactory, storage: LocalStorage, job_id: uuid.UUID
 ) -> None:
     run_to_failure(sessions, storage, job_id, "sync")
-    with pytest.raises(WorkflowError, match=r"stage sync of job .* has not succeeded"):
-        workflow.rerun(sessions, storage, Broker(), job_id, "pose")
+    with pytest.raises(Conflict, match=r"stage sync of job .* has not succeeded"):
+        call(sessions, workflow.rerun, storage, Broker(), job_id, "pose")
     assert statuses(sessions, job_id)["sync"] == "failed"  # nothing changed
 
 
@@ -252,7 +263,7 @@ def test_rerun_from_track_plans_chunks_again(
     run_to_failure(sessions, storage, job_id, "track/cam2/00000180-00000360")
     broker = Broker()
     new_params = {**PARAMS, "chunk_s": 12}
-    assert workflow.rerun(sessions, storage, broker, job_id, "track", new_params) == "track"
+    assert call(sessions, workflow.rerun, storage, broker, job_id, "track", new_params) == "track"
     assert sorted(broker.take()) == [
         f"track/cam{c}/{a:08d}-{b:08d}" for c in (1, 2) for a, b in ((0, 360), (360, 600))
     ]
@@ -269,6 +280,6 @@ def test_default_rerun_stage() -> None:
 
     assert workflow.default_rerun_stage(rows(probe="failed")) == "probe"
     assert workflow.default_rerun_stage(rows(probe="succeeded")) == "track"
-    done = dict.fromkeys(workflow.STAGES, "succeeded")
+    done = dict.fromkeys(STAGE_NAMES, "succeeded")
     assert workflow.default_rerun_stage(rows(**done)) is None
     assert workflow.default_rerun_stage(rows(**{**done, "link": "cancelled"})) == "link"

@@ -1,0 +1,326 @@
+"""Every parameter of every stage: validated, frozen, JSON-able pydantic models.
+
+`ProcessParams` is what a run (CLI or service job) is configured with; it has one
+sub-model per stage. The models live here, apart from the science modules that use
+them, so that validating a job's parameters (the API does it on every submission)
+needs pydantic alone: no OpenCV, SciPy, PyAV or onnxruntime.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any, Literal, Self
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+#: Largest camera separation accepted, in metres (volunteer rigs are 1–2 m).
+MAX_SEPARATION_M = 100.0
+
+
+def validate_separation(separation_m: float) -> None:
+    """Refuse a camera separation (metres) that cannot be a real measurement.
+
+    Raises
+    ------
+    ValueError
+        If it is not a finite distance in ``(0, MAX_SEPARATION_M]``.
+    """
+    if not (math.isfinite(separation_m) and 0 < separation_m <= MAX_SEPARATION_M):
+        raise ValueError(
+            f"camera separation must be a finite distance in (0, {MAX_SEPARATION_M:g}] m, "
+            f"got {separation_m!r}"
+        )
+
+
+class TrackingParams(BaseModel):
+    """Parameters of flash-candidate tracking (validated; the service accepts overrides)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    tau_s: float = Field(
+        default=2.0,
+        gt=0,
+        le=600,
+        description="Background time constant τ in seconds: the EWMA's decay time, or the "
+        "length of the box mean.",
+    )
+    background: Literal["ewma", "box"] = Field(
+        default="ewma",
+        description="'ewma': exponentially weighted mean over τ (restarted on a block grid, "
+        "see block_s); 'box': mean of the frames in the preceding τ (memory: τ·fps frames).",
+    )
+    threshold: float = Field(
+        default=0.1,
+        gt=0,
+        lt=1,
+        description="Candidate pixels have a foreground (frame − background, clipped at 0) "
+        "above this fraction of full scale. 0.1 (25.5 grey levels), half the source "
+        "method's 0.2: a point-like flash spreads over a few pixels (lens blur, pixel "
+        "sampling, compression), so its brightest pixel holds only 45–80 % of its peak, "
+        "and at 0.2 the dim rise/fall frames and distant flashes are lost (candidate "
+        "recall 0.76–0.85 on simulated recordings, 0.96–1.00 at 0.1). 25 levels is still "
+        "over 6σ of compressed night-time sensor noise; the classifier rejects the extra "
+        "candidates.",
+    )
+    blur_px: float = Field(
+        default=0.0,
+        ge=0,
+        le=10,
+        description="Gaussian blur σ in pixels applied to the luminance before background "
+        "subtraction (0 = off); about 1 px suppresses single-pixel noise in grainy video.",
+    )
+    min_area: int = Field(default=1, ge=1, description="Smallest blob kept, in pixels.")
+    max_area: int = Field(
+        default=500,
+        ge=1,
+        description="Largest blob kept, in pixels: fireflies are 1–10 px across even in "
+        "5.6K video; larger blobs are lamps, headlights or exposure changes.",
+    )
+    max_candidates_per_frame: int = Field(
+        default=500,
+        ge=1,
+        description="Blobs kept per frame, the brightest first; the rest are counted as "
+        "dropped (a frame flooded by light must not blow up time or memory).",
+    )
+    max_foreground_px: int = Field(
+        default=50_000,
+        ge=1,
+        description="Candidate pixels labelled per frame; in a flooded frame only the "
+        "brightest are kept (the frame is counted as flooded).",
+    )
+    block_s: float = Field(
+        default=30.0,
+        gt=0,
+        description="EWMA restart grid in seconds: each block of this length is analysed "
+        "by a model warmed on the frames just before it, so chunks are exact.",
+    )
+    warmup_tau: float = Field(
+        default=3.0,
+        ge=0,
+        description="EWMA warm-up before each block, in units of tau_s.",
+    )
+
+    @model_validator(mode="after")
+    def _consistent(self) -> TrackingParams:
+        if self.max_area < self.min_area:
+            raise ValueError(f"max_area ({self.max_area}) is below min_area ({self.min_area})")
+        if self.warmup_tau * self.tau_s > self.block_s:
+            raise ValueError(
+                f"the EWMA warm-up warmup_tau × tau_s = {self.warmup_tau * self.tau_s:g} s "
+                f"must not exceed block_s = {self.block_s:g} s"
+            )
+        return self
+
+
+class FlickerParams(BaseModel):
+    """Where the line between a flash train and a flickering light source is drawn."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    enabled: bool = Field(True, description="Reject candidates at flickering spots.")
+    radius_deg: float = Field(
+        1.5, gt=0, le=20, description="Neighbourhood radius (Chebyshev, in pixels of this angle)."
+    )
+    window_s: float = Field(2.0, gt=0, description="Length of the centred time window, seconds.")
+    max_duty: float = Field(
+        0.4,
+        gt=0,
+        le=1,
+        description="Candidates per frame in the neighbourhood above which a spot flickers "
+        "(flash trains measure <= 0.25; moon-through-leaves 0.5–0.9 in the simulator).",
+    )
+
+
+class SyncParams(BaseModel):
+    """Parameters of `estimate_delay`."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    max_delay_s: float = Field(
+        default=120.0, gt=0, description="Largest |delay| searched, in seconds (both signs)."
+    )
+    window_s: float = Field(
+        default=10.0, gt=0, description="Length of each RANSAC window of camera 1, in seconds."
+    )
+    n_windows: int = Field(
+        default=200,
+        ge=100,
+        le=10_000,
+        description="Number of random RANSAC windows (at least 100).",
+    )
+    agree_frames: int = Field(
+        default=0,
+        ge=0,
+        description="A window agrees with the modal delay when its vote is within this many "
+        "frames (0: exact agreement).",
+    )
+    outlier_mads: float = Field(
+        default=6.0,
+        gt=0,
+        description="A frame's count is a light-pollution outlier when it exceeds the median "
+        "non-zero count by more than this many robust standard deviations (1.4826 MAD, at "
+        "least 1 flash).",
+    )
+    min_confidence: float = Field(
+        default=0.5, ge=0, le=1, description="Below this confidence the estimate carries a warning."
+    )
+    seed: int = Field(
+        default=0, ge=0, description="Seed of the random window draw (deterministic)."
+    )
+
+
+class PoseParams(BaseModel):
+    """Parameters of `estimate_pose`."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    min_pairs: int = Field(
+        default=12,
+        ge=8,
+        description="Fewest calibration pairs (and inliers) accepted; the 8-point start "
+        "needs at least 8.",
+    )
+    inlier_sigmas: float = Field(
+        default=3.0,
+        gt=0,
+        description="Inlier threshold on the depth-normalised gap, in robust standard "
+        "deviations (1.4826 × median residual), so that it follows the bearing noise.",
+    )
+    min_threshold_deg: float = Field(
+        default=0.1,
+        gt=0,
+        description="Smallest inlier threshold (degrees); also the scale of the robust loss.",
+    )
+    max_threshold_deg: float = Field(
+        default=2.0,
+        gt=0,
+        description="Largest inlier threshold (degrees): when most pairs are mismatched the "
+        "noise estimate is meaningless, and a miss this large is never an inlier.",
+    )
+    max_start_pairs: int = Field(
+        default=1000,
+        ge=8,
+        description="The starts compete on at most this many evenly spread pairs; the best "
+        "is then refined on all pairs.",
+    )
+    max_refits: int = Field(
+        default=3,
+        ge=1,
+        le=20,
+        description="Refits on inliers, stopped early when the inlier set is stable.",
+    )
+    min_inlier_fraction: float = Field(
+        default=0.5,
+        ge=0,
+        le=1,
+        description="Below this fraction of inliers the estimate carries a warning.",
+    )
+
+    @model_validator(mode="after")
+    def _ordered_thresholds(self) -> PoseParams:
+        if self.min_threshold_deg > self.max_threshold_deg:
+            raise ValueError(
+                f"min_threshold_deg ({self.min_threshold_deg}) exceeds max_threshold_deg "
+                f"({self.max_threshold_deg})"
+            )
+        return self
+
+
+class TriangulationParams(BaseModel):
+    """Parameters of `triangulate`."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    gate: float = Field(
+        default=0.2,
+        gt=0,
+        description="Largest ray gap of a match, in units of the camera separation.",
+    )
+    max_range_m: float = Field(
+        default=20.0, gt=0, description="Points farther than this from camera 1 (m) are dropped."
+    )
+    max_gap_deg: float = Field(
+        default=1.0,
+        gt=0,
+        description="Largest ray gap of a match as an angle seen from the farther camera, "
+        "degrees: near the cameras a gap under `gate` can still be a gross mismatch "
+        "(simulated true matches measure <= 0.3 deg, mismatches >= 1.2 deg).",
+    )
+    min_parallax_px: float = Field(
+        default=2.0,
+        ge=0,
+        description="Smallest angle the baseline subtends at a point, in pixels of angle "
+        "(360 deg / width). Near the baseline's axis a tenth of a pixel of localisation "
+        "error moves the point by several percent of its range; such points are dropped.",
+    )
+
+
+class LinkingParams(BaseModel):
+    """Parameters of `link`."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    streak_radius_m: float = Field(
+        default=0.3,
+        gt=0,
+        description="Largest distance (m) between a flash's positions in consecutive frames.",
+    )
+    trajectory_radius_m: float = Field(
+        default=1.0,
+        gt=0,
+        description="Largest distance (m) between a streak's end and the next streak's start.",
+    )
+    max_gap_s: float = Field(
+        default=1.0,
+        gt=0,
+        description="Longest time (s) from a streak's end to the next streak's start.",
+    )
+
+
+class ClassifierParams(BaseModel):
+    """Which flash classifier to run on candidate patches, and where to cut."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    enabled: bool = Field(True, description="Classify candidates; false = tracking only.")
+    model: str | None = Field(None, description="ONNX model path; None = the shipped model.")
+    card: str | None = Field(None, description="Model card JSON; None = beside the model.")
+    threshold: float | None = Field(
+        None, ge=0.0, le=1.0, description="Accept at probability >= this; None = the card's."
+    )
+
+
+class ProcessParams(BaseModel):
+    """Every parameter of every stage; JSON-able, validated, immutable."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    tracking: TrackingParams = TrackingParams()
+    classifier: ClassifierParams = ClassifierParams()
+    sync: SyncParams = SyncParams()
+    pose: PoseParams = PoseParams()
+    triangulation: TriangulationParams = TriangulationParams()
+    linking: LinkingParams = LinkingParams()
+    flicker: FlickerParams = FlickerParams()
+    chunk_s: float = Field(60.0, gt=0, description="Length of a tracking chunk, seconds.")
+
+    def merged(self, overrides: Mapping[str, Any]) -> Self:
+        """These parameters with ``overrides`` deep-merged in, validated.
+
+        Raises
+        ------
+        pydantic.ValidationError
+            If an override names an unknown parameter or has an invalid value.
+        """
+        return self.model_validate(_deep_merge(self.model_dump(), overrides))
+
+
+def _deep_merge(base: dict[str, Any], overrides: Mapping[str, Any]) -> dict[str, Any]:
+    merged = dict(base)
+    for key, value in overrides.items():
+        if isinstance(value, Mapping) and isinstance(merged.get(key), dict):
+            merged[key] = _deep_merge(merged[key], value)
+        else:
+            merged[key] = value
+    return merged

@@ -1,0 +1,336 @@
+"""The stage functions of the graph (`pipeline.graph.STAGES`): files in, science, files out.
+
+Each function takes a `StageContext` (its unit, the run's parameters and inputs, the
+run folder) and returns what it measured; it reads the files its graph entry declares
+and writes the ones it declares, under names that are deterministic per unit, so that
+re-running a unit overwrites exactly its own outputs. The science lives in the modules
+these call; nothing here knows whether it runs in the CLI or in a Celery worker.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import asdict
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pipeline.artifacts import (
+    CALIBRATION_JSON,
+    CALIBRATION_PAIRS_NPZ,
+    CAMERAS,
+    CANDIDATES_NPZ,
+    CHUNK_METRICS_JSON,
+    CHUNK_NPZ,
+    FLASHES_CSV,
+    POINTS_NPZ,
+    SUMMARY_JSON,
+    SYNC_JSON,
+    TRAJECTORIES_CSV,
+)
+from pipeline.classify import FlashClassifier
+from pipeline.detections import Detections
+from pipeline.flicker import flickering
+from pipeline.graph import StageContext, StageResult, earlier_units, read_record
+from pipeline.jsonio import read_json, write_json
+from pipeline.params import ClassifierParams, validate_separation
+from pipeline.pose import calibration_pairs, estimate_pose
+from pipeline.probe import StereoProbe
+from pipeline.results import (
+    Calibration,
+    load_points,
+    read_calibration,
+    save_points,
+    write_calibration,
+    write_trajectories,
+)
+from pipeline.summary import summarise
+from pipeline.sync import estimate_delay
+from pipeline.tracking import TrackingStats, track_with_stats
+from pipeline.trajectories import link as link_points
+from pipeline.triangulate import triangulate as triangulate_points
+from pipeline.video import check_stereo_pair, probe_video
+
+
+def _chapters(videos: Mapping[int, Path]) -> list[Path]:
+    return [videos[i] for i in sorted(videos)]
+
+
+def probe(ctx: StageContext) -> StageResult:
+    """Probe both cameras' chapter files and check they form a stereo pair.
+
+    Raises
+    ------
+    pipeline.probe.VideoError
+        Naming the file, for unreadable, empty or non-equirectangular videos, chapters
+        that disagree, or cameras with different fps or frame sizes.
+    """
+    info1, info2 = (probe_video(_chapters(ctx.videos[camera])) for camera in CAMERAS)
+    check_stereo_pair(info1, info2)
+    StereoProbe(
+        width=info1.width,
+        height=info1.height,
+        fps=info1.fps,
+        n_frames={1: info1.n_frames, 2: info2.n_frames},
+        videos={1: info1, 2: info2},
+    ).save(ctx.workdir)
+    return StageResult(
+        metrics={
+            "width": info1.width,
+            "height": info1.height,
+            "fps": info1.fps,
+            "n_frames_cam1": info1.n_frames,
+            "n_frames_cam2": info2.n_frames,
+            "codec_cam1": info1.codec,
+            "codec_cam2": info2.codec,
+            "chapters_cam1": len(info1.chapters),
+            "chapters_cam2": len(info2.chapters),
+        }
+    )
+
+
+def probe_detections(
+    det1: Detections, det2: Detections, width: int, height: int, fps: float, workdir: Path
+) -> StageResult:
+    """The probe of a run that starts from detections: sizes given, lengths inferred."""
+    if width != 2 * height:
+        raise ValueError(
+            f"frames must be equirectangular (width = 2 × height), got {width}×{height}"
+        )
+    if not np.isfinite(fps) or fps <= 0:
+        raise ValueError(f"fps must be a positive number, got {fps}")
+    n_frames = {c: int(d.frame.max()) + 1 if len(d) else 0 for c, d in ((1, det1), (2, det2))}
+    StereoProbe(width=width, height=height, fps=fps, n_frames=n_frames).save(workdir)
+    metrics = {"width": width, "height": height, "fps": fps}
+    metrics.update({f"n_frames_cam{c}": n for c, n in n_frames.items()})
+    return StageResult(metrics=metrics)
+
+
+@lru_cache(maxsize=4)
+def _classifier(model: str | None, card: str | None) -> FlashClassifier:
+    # One ONNX session per process, reused by every chunk it tracks.
+    return FlashClassifier.load(model, card)
+
+
+def load_classifier(params: ClassifierParams) -> FlashClassifier | None:
+    """The classifier the parameters name, or None when classification is off."""
+    return _classifier(params.model, params.card) if params.enabled else None
+
+
+def accept_threshold(params: ClassifierParams) -> float | None:
+    """Probability at or above which a candidate is a flash; None = accept all."""
+    if not params.enabled:
+        return None
+    if params.threshold is not None:
+        return params.threshold
+    return _classifier(params.model, params.card).threshold
+
+
+def track(ctx: StageContext) -> StageResult:
+    """Track (and classify) every candidate flash of one camera in one frame range."""
+    camera, start, stop = ctx.unit.camera, ctx.unit.start, ctx.unit.stop
+    assert camera is not None and start is not None and stop is not None
+    info = ctx.probe.videos[camera].with_paths(ctx.videos[camera])
+    done = 0
+
+    def on_frames(n: int) -> None:
+        nonlocal done
+        done += n
+        ctx.progress(done / max(stop - start, 1))
+
+    result = track_with_stats(
+        info,
+        start,
+        stop,
+        ctx.params.tracking,
+        classifier=load_classifier(ctx.params.classifier),
+        progress=on_frames,
+    )
+    out = ctx.path(CHUNK_NPZ)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    result.detections.to_npz(out)
+    metrics = {"camera": camera, "start": start, "stop": stop, **asdict(result.stats)}
+    return StageResult(metrics=metrics)
+
+
+def _tracking_totals(chunk_metrics: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
+    """A camera's `TrackingStats` and tracking time summed over its chunks."""
+    chunk_metrics = list(chunk_metrics)
+    totals: dict[str, Any] = {
+        name: int(sum(m.get(name, 0) for m in chunk_metrics))
+        for name in TrackingStats.__dataclass_fields__
+    }
+    seconds = float(sum(m.get("seconds", 0.0) for m in chunk_metrics))
+    totals["seconds"] = seconds
+    totals["fps"] = totals["frames"] / seconds if seconds > 0 else None
+    return totals
+
+
+def merge(ctx: StageContext) -> StageResult:
+    """Concatenate a camera's chunks and keep the candidates that are flashes.
+
+    A candidate is accepted if the classifier accepts it (always, without one) and it
+    does not sit on a flickering spot (`pipeline.flicker`). Writes every candidate
+    (``candidates_cam<c>.npz``) and the accepted ones (``flashes_cam<c>.csv``).
+    """
+    camera = ctx.unit.camera
+    chunks = ctx.paths(CHUNK_NPZ)
+    missing = [p.relative_to(ctx.workdir).as_posix() for p in chunks if not p.exists()]
+    if missing:
+        raise FileNotFoundError(f"camera {camera}: tracking chunks missing: {', '.join(missing)}")
+    # Canonical row order (frame, row, column): results then do not depend on how a
+    # tracker (ours, or another behind `reconstruct`) happened to list its blobs.
+    candidates = Detections.concat(Detections.from_npz(p) for p in chunks).sorted()
+    threshold = accept_threshold(ctx.params.classifier)
+    flicker = flickering(
+        candidates.frame,
+        candidates.x,
+        candidates.y,
+        ctx.probe.width,
+        ctx.probe.fps,
+        ctx.params.flicker,
+    )
+    keep = ~flicker if threshold is None else ~flicker & (candidates.flash_probability >= threshold)
+    accepted = candidates.select(keep)
+    candidates.to_npz(ctx.path(CANDIDATES_NPZ))
+    accepted.to_csv(ctx.path(FLASHES_CSV))
+    tracking = _tracking_totals(
+        read_json(p)["metrics"] for p in ctx.paths(CHUNK_METRICS_JSON) if p.exists()
+    )
+    metrics = {
+        "camera": camera,
+        "n_chunks": len(chunks),
+        "n_candidates": len(candidates),
+        "n_flickering": int(flicker.sum()),
+        "n_accepted": len(accepted),
+        "threshold": threshold,
+        "tracking": tracking,
+    }
+    warnings = []
+    if len(accepted) == 0:
+        warnings.append(f"camera {camera}: no flashes accepted out of {len(candidates)} candidates")
+    return StageResult(metrics=metrics, warnings=warnings)
+
+
+def _accepted(ctx: StageContext) -> tuple[Detections, Detections]:
+    det1, det2 = (Detections.from_csv(p) for p in ctx.paths(FLASHES_CSV))
+    return det1, det2
+
+
+def sync(ctx: StageContext) -> StageResult:
+    """Frame delay between the cameras from their per-frame flash counts."""
+    probe = ctx.probe
+    det1, det2 = _accepted(ctx)
+    estimate = estimate_delay(
+        det1.counts_per_frame(probe.n_frames[1]),
+        det2.counts_per_frame(probe.n_frames[2]),
+        probe.fps,
+        ctx.params.sync,
+    )
+    write_json(ctx.path(SYNC_JSON), estimate.to_dict())
+    metrics = {
+        "delay_frames": estimate.delay_frames,
+        "delay_s": estimate.delay_frames / probe.fps,
+        "delay_confidence": estimate.confidence,
+        "n_windows": estimate.n_windows,
+        "n_flashes_cam1": len(det1),
+        "n_flashes_cam2": len(det2),
+    }
+    return StageResult(metrics=metrics, warnings=list(estimate.warnings))
+
+
+def pose(ctx: StageContext) -> StageResult:
+    """Relative pose from frames where each camera sees exactly one flash.
+
+    Writes ``calibration.json`` (the delay from ``sync.json`` included); the camera
+    height, when known, is recorded there as metadata.
+    """
+    validate_separation(ctx.separation_m)
+    probe = ctx.probe
+    delay = read_json(ctx.path(SYNC_JSON))
+    det1, det2 = _accepted(ctx)
+    pairs = calibration_pairs(det1, det2, int(delay["delay_frames"]), probe.width)
+    estimate = estimate_pose(pairs, ctx.params.pose)
+    np.savez_compressed(
+        ctx.path(CALIBRATION_PAIRS_NPZ),
+        frame1=pairs.frame1,
+        residuals=estimate.residuals,
+        inliers=estimate.inliers,
+    )
+    calibration = Calibration(
+        delay_frames=int(delay["delay_frames"]),
+        delay_confidence=float(delay["confidence"]),
+        pose=estimate.pose,
+        separation_m=ctx.separation_m,
+        fps=probe.fps,
+        width=probe.width,
+        height=probe.height,
+    )
+    write_calibration(
+        ctx.path(CALIBRATION_JSON),
+        calibration,
+        extra={
+            "n_calibration_pairs": estimate.n_pairs,
+            "n_calibration_inliers": estimate.n_inliers,
+            "residuals": estimate.stats,
+            "camera_height_m": ctx.camera_height_m,
+            "warnings": [*delay.get("warnings", []), *estimate.warnings],
+        },
+    )
+    metrics = {
+        "n_calibration_pairs": estimate.n_pairs,
+        "n_calibration_inliers": estimate.n_inliers,
+        "rotation": estimate.pose.rotation.tolist(),
+        "translation": estimate.pose.translation.tolist(),
+        "residuals": estimate.stats,
+    }
+    return StageResult(metrics=metrics, warnings=list(estimate.warnings))
+
+
+def triangulate(ctx: StageContext) -> StageResult:
+    """Match flashes between synchronised frames and triangulate them in metres."""
+    validate_separation(ctx.separation_m)
+    calibration = read_calibration(ctx.path(CALIBRATION_JSON))
+    det1, det2 = _accepted(ctx)
+    points = triangulate_points(
+        det1,
+        det2,
+        calibration.delay_frames,
+        calibration.pose,
+        calibration.width,
+        ctx.separation_m,
+        ctx.params.triangulation,
+    )
+    save_points(ctx.path(POINTS_NPZ), points)
+    metrics = {
+        "n_points": len(points),
+        "median_gap_m": float(np.median(points.gap_m)) if len(points) else None,
+        "median_range_m": float(np.median(points.range_m)) if len(points) else None,
+    }
+    warnings = [] if len(points) else ["no flash could be triangulated"]
+    return StageResult(metrics=metrics, warnings=warnings)
+
+
+def link(ctx: StageContext) -> StageResult:
+    """Link triangulated flashes into streaks and trajectories; write trajectories.csv."""
+    points = load_points(ctx.path(POINTS_NPZ))
+    linking = link_points(points, ctx.probe.fps, ctx.params.linking)
+    write_trajectories(ctx.path(TRAJECTORIES_CSV), points, linking, ctx.probe.fps)
+    metrics = {
+        "n_points": len(points),
+        "n_streaks": len(np.unique(linking.streak_id)),
+        "n_trajectories": len(np.unique(linking.trajectory_id)),
+    }
+    return StageResult(metrics=metrics)
+
+
+def report(ctx: StageContext) -> StageResult:
+    """Plots and ``summary.json`` of a finished run."""
+    from pipeline.report import write_plots  # matplotlib is only needed here
+
+    plots = write_plots(ctx.workdir)
+    records = {u: read_record(ctx.workdir, u) for u in earlier_units(ctx.unit, ctx.units)}
+    write_json(ctx.workdir / SUMMARY_JSON, summarise(records, ctx.params))
+    return StageResult(metrics={"n_plots": len(plots)})

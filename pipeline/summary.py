@@ -1,0 +1,73 @@
+"""The summary of a run, built from what its units recorded.
+
+One function for every reader: the report stage writes it to ``report/summary.json``
+from the run folder's metrics files, and the service stores it on the job from the
+stage rows' metrics (the same records), so the job page, the API and the report say
+the same thing, also while a job is still running (missing values are None).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+from pipeline.artifacts import CAMERAS
+from pipeline.graph import StageResult, Unit, position
+from pipeline.params import ProcessParams
+
+
+def summarise(records: Mapping[Unit, StageResult], params: ProcessParams) -> dict[str, Any]:
+    """Counts, calibration quality, tracking statistics, warnings and timings of a run.
+
+    Parameters
+    ----------
+    records : mapping of Unit to StageResult
+        Metrics and warnings of the whole-run and per-camera units that have run
+        (tracking chunks are summed up by their camera's merge unit).
+    params : ProcessParams
+        The run's parameters (copied into the summary).
+
+    Returns
+    -------
+    dict
+        ``counts``, ``delay_frames``, ``delay_confidence``, ``rotation``,
+        ``translation``, ``residuals``, ``tracking`` (per camera), ``warnings``,
+        ``timings_s`` (per unit; ``track_cam<c>`` = the camera's tracking time summed
+        over its chunks) and ``parameters``.
+    """
+    ordered = sorted(records.items(), key=lambda item: position(item[0]))
+    metrics = {unit.slug: result.metrics for unit, result in ordered}
+
+    def value(slug: str, key: str) -> Any:
+        return metrics.get(slug, {}).get(key)
+
+    counts: dict[str, Any] = {}
+    for camera in CAMERAS:
+        counts[f"candidates_cam{camera}"] = value(f"merge_cam{camera}", "n_candidates")
+        counts[f"flashes_cam{camera}"] = value("sync", f"n_flashes_cam{camera}")
+    counts.update(
+        calibration_pairs=value("pose", "n_calibration_pairs"),
+        calibration_inliers=value("pose", "n_calibration_inliers"),
+        points=value("link", "n_points"),
+        streaks=value("link", "n_streaks"),
+        trajectories=value("link", "n_trajectories"),
+    )
+    timings = {slug: m.get("seconds") for slug, m in metrics.items()}
+    tracking = {}
+    for camera in CAMERAS:
+        stats = value(f"merge_cam{camera}", "tracking")
+        if stats is not None:
+            tracking[f"cam{camera}"] = stats
+            timings[f"track_cam{camera}"] = stats.get("seconds")
+    return {
+        "counts": counts,
+        "delay_frames": value("sync", "delay_frames"),
+        "delay_confidence": value("sync", "delay_confidence"),
+        "rotation": value("pose", "rotation"),
+        "translation": value("pose", "translation"),
+        "residuals": value("pose", "residuals") or {},
+        "tracking": tracking,
+        "warnings": [w for _, result in ordered for w in result.warnings],
+        "timings_s": timings,
+        "parameters": params.model_dump(mode="json"),
+    }

@@ -1,0 +1,60 @@
+"""The run summary from the units' records."""
+
+from __future__ import annotations
+
+from pipeline.graph import StageResult, Unit
+from pipeline.params import ProcessParams
+from pipeline.summary import summarise
+
+
+def test_summary_gathers_counts_calibration_tracking_warnings_and_timings() -> None:
+    tracking = {"frames": 600, "flooded_frames": 2, "dropped_over_cap": 7, "seconds": 3.0}
+    records = {
+        Unit("link"): StageResult(
+            {"n_points": 40, "n_streaks": 9, "n_trajectories": 3, "seconds": 0.1}
+        ),
+        Unit("sync"): StageResult(
+            {
+                "delay_frames": -4,
+                "delay_confidence": 0.9,
+                "n_flashes_cam1": 50,
+                "n_flashes_cam2": 45,
+            },
+            ["low confidence"],
+        ),
+        Unit("merge", 1): StageResult({"n_candidates": 80, "tracking": tracking, "seconds": 0.2}),
+        Unit("pose"): StageResult(
+            {
+                "n_calibration_pairs": 30,
+                "n_calibration_inliers": 28,
+                "rotation": [[1, 0, 0], [0, 1, 0], [0, 0, 1]],
+                "translation": [0, 1, 0],
+                "residuals": {"median_deg": 0.01},
+            },
+            ["few inliers"],
+        ),
+    }
+    summary = summarise(records, ProcessParams())
+    assert summary["counts"] == {
+        "candidates_cam1": 80,
+        "flashes_cam1": 50,
+        "candidates_cam2": None,
+        "flashes_cam2": 45,
+        "calibration_pairs": 30,
+        "calibration_inliers": 28,
+        "points": 40,
+        "streaks": 9,
+        "trajectories": 3,
+    }
+    assert (summary["delay_frames"], summary["delay_confidence"]) == (-4, 0.9)
+    assert summary["translation"] == [0, 1, 0] and summary["residuals"] == {"median_deg": 0.01}
+    assert summary["tracking"] == {"cam1": tracking}
+    assert summary["warnings"] == ["low confidence", "few inliers"]  # in pipeline order
+    assert summary["timings_s"]["track_cam1"] == 3.0 and summary["timings_s"]["link"] == 0.1
+    assert summary["parameters"] == ProcessParams().model_dump(mode="json")
+
+
+def test_summary_of_a_run_that_has_not_started_is_empty_but_complete() -> None:
+    summary = summarise({}, ProcessParams())
+    assert summary["counts"]["points"] is None and summary["delay_frames"] is None
+    assert summary["warnings"] == [] and summary["tracking"] == {}
