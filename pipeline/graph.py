@@ -155,7 +155,9 @@ class StageContext:
 
     def paths(self, template: str) -> list[Path]:
         """The run-folder paths a template expands to for this unit (see `resolve`)."""
-        return [self.workdir / name for name in resolve(template, self.unit, self.units)]
+        # Only chunk names need the probe (to plan the chunks).
+        units = self.units if is_chunk_template(template) else plan(None, self.params, self.stages)
+        return [self.workdir / name for name in resolve(template, self.unit, units)]
 
 
 StageFunction = Callable[[StageContext], StageResult]
@@ -375,20 +377,24 @@ def earlier_units(unit: Unit, units: Iterable[Unit]) -> list[Unit]:
     )
 
 
+def is_chunk_template(template: str) -> bool:
+    """Whether a file name template names tracking chunks (it has a ``{start}`` field)."""
+    return "start" in {name for _, name, _, _ in string.Formatter().parse(template) if name}
+
+
 def resolve(template: str, unit: Unit, units: Iterable[Unit]) -> list[str]:
     """The run-folder names a `reads` / `writes` entry stands for, for `unit`."""
     units = list(units)
     if template == EARLIER_METRICS:
         return [u.metrics_name for u in earlier_units(unit, units)]
-    fields = {name for _, name, _, _ in string.Formatter().parse(template) if name}
-    if "start" in fields:
+    if is_chunk_template(template):
         chunks = [
             u
             for u in units
             if u.start is not None and (unit.camera is None or u.camera == unit.camera)
         ]
         return [u.fill(template) for u in sorted(chunks, key=position)]
-    if "camera" in fields and unit.camera is None:
+    if "{camera" in template and unit.camera is None:
         return [template.format(camera=camera) for camera in CAMERAS]
     return [unit.fill(template)]
 

@@ -139,9 +139,10 @@ def run_unit(claimed: Claim, workdir: Path, rt: Runtime, progress: Progress) -> 
         progress=progress,
     )
     probed = PROBE_JSON in entry.reads
-    if probed:  # first: the other names may depend on the planned chunks
+    if probed:  # first: the names of chunks depend on the plan it gives
         fetch_artifact(rt.storage, claimed.job_id, PROBE_JSON, workdir)
-    units = context.units if probed else graph.plan(None, claimed.params)
+    chunked = any(graph.is_chunk_template(t) for t in entry.reads)
+    units = context.units if chunked else graph.plan(None, claimed.params)
     for name in graph.reads(claimed.unit, units):
         if name != PROBE_JSON:
             fetch_artifact(rt.storage, claimed.job_id, name, workdir)

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import inspect
+from pathlib import Path
 
 import pytest
 
 from pipeline import graph
 from pipeline.artifacts import CHUNK_NPZ, FLASHES_CSV, PROBE_JSON
-from pipeline.graph import EARLIER_METRICS, STAGE_NAMES, STAGES, Unit
+from pipeline.graph import EARLIER_METRICS, STAGE_NAMES, STAGES, StageContext, Unit
 from pipeline.params import ProcessParams
 from pipeline.probe import StereoProbe
 
@@ -107,3 +108,17 @@ def test_units_name_themselves() -> None:
     assert (Unit("merge", 2).key, Unit("merge", 2).label) == ("merge/cam2", "merge camera 2")
     with pytest.raises(ValueError, match="unknown stage 'calibrate'; stages are probe, track"):
         graph.stage("calibrate")
+
+
+def test_a_unit_finds_its_files_without_the_probe_unless_it_reads_chunks(tmp_path: Path) -> None:
+    """A worker fetches only what a unit reads: triangulation has no probe.json."""
+    context = StageContext(
+        workdir=tmp_path, unit=Unit("triangulate"), params=PARAMS, separation_m=1.5
+    )
+    assert context.paths(FLASHES_CSV) == [
+        tmp_path / "flashes_cam1.csv",
+        tmp_path / "flashes_cam2.csv",
+    ]
+    merge = StageContext(workdir=tmp_path, unit=Unit("merge", 1), params=PARAMS, separation_m=1.5)
+    PROBE.save(tmp_path)
+    assert len(merge.paths(CHUNK_NPZ)) == 4
