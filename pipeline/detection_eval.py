@@ -162,7 +162,7 @@ def false_positive_kinds(
         inside = valid & (dist <= art.radius[rows][np.minimum(idx, len(rows) - 1)])
         first = np.argmax(inside, axis=1)
         hit = inside[np.arange(len(todo)), first]
-        owner = rows[idx[np.arange(len(todo)), first]]
+        owner = rows[np.minimum(idx[np.arange(len(todo)), first], len(rows) - 1)]
         sub = np.flatnonzero(~near)
         kinds[sub[hit]] = art.kind[owner[hit]]
     names, counts = np.unique(kinds.astype(str), return_counts=True)

@@ -22,6 +22,8 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import ValidationError
 
+from pipeline import artifacts
+
 if TYPE_CHECKING:
     from pipeline.run import ProcessParams
     from pipeline.simulate import GroundTruth, SimulationConfig
@@ -211,7 +213,16 @@ def run_pipeline(
     cam1 = [recording / name for name in truth.extra.get("cam1", ["cam1_00.mp4"])]
     cam2 = [recording / name for name in truth.extra.get("cam2", ["cam2_00.mp4"])]
     out.mkdir(parents=True, exist_ok=True)
-    stamp.unlink(missing_ok=True)
+    # A stage that fails now must not leave an earlier run's results to be scored.
+    for name in (
+        "eval-params.json",
+        artifacts.TRAJECTORIES_CSV,
+        artifacts.CALIBRATION_JSON,
+        artifacts.POINTS_NPZ,
+        *(artifacts.flashes_name(c) for c in artifacts.CAMERAS),
+        *(artifacts.candidates_name(c) for c in artifacts.CAMERAS),
+    ):
+        (out / name).unlink(missing_ok=True)
     try:
         process(cam1, cam2, truth.separation_m, out, params)
     except Exception as exc:  # a failed stage still leaves 2D results to score
