@@ -201,6 +201,36 @@ def detection_figures(
     }
 
 
+# -- stereo ---------------------------------------------------------------------------------
+
+
+def stereo_figures(
+    detections1: Detections, detections2: Detections, truth: GroundTruth
+) -> dict[str, Any]:
+    """Flash-frames seen by both cameras that were detected in both (each camera's 2D
+    match): what triangulation could reconstruct with a perfect calibration, an upper
+    bound on 3D recall that does not depend on the delay and pose estimates."""
+    flashes = truth.flashes
+    found = np.zeros((2, len(flashes)), dtype=bool)
+    for camera, detections in ((1, detections1), (2, detections2)):
+        match = match_detections(detections, truth, camera)
+        found[camera - 1, match.truth_rows[match.found]] = True
+    rows = np.flatnonzero(flashes.visible1 & flashes.visible2)
+    both = found[0, rows] & found[1, rows]
+    snr = np.fmin(flashes.snr1[rows], flashes.snr2[rows])
+    strong = snr >= HEADLINE_SNR
+    return {
+        "n_truth": len(rows),
+        "n_found": int(both.sum()),
+        "recall": ratio(both.sum(), len(rows)),
+        "n_truth_snr_ge5": int(strong.sum()),
+        "n_found_snr_ge5": int(both[strong].sum()),
+        "recall_snr_ge5": ratio(both[strong].sum(), strong.sum()),
+        "by_range_m": binned(flashes.range1[rows], [("found", both)], RANGE_EDGES_M),
+        "by_snr": binned(snr, [("found", both)], SNR_EDGES),
+    }
+
+
 # -- 3D -----------------------------------------------------------------------------------
 
 
@@ -234,27 +264,33 @@ def point_figures(xyz: NDArray, frame: NDArray, truth: GroundTruth) -> dict[str,
 def score_run(results: Path, truth: GroundTruth) -> dict[str, Any]:
     """Every figure of one run folder against its truth (what is missing is None)."""
     cameras: dict[str, Any] = {}
+    loaded: dict[str, dict[int, Detections]] = {"accepted": {}, "candidates": {}}
     for camera in artifacts.CAMERAS:
-        n_frames = truth.n_frames1 if camera == 1 else truth.n_frames2
-        entry: dict[str, Any] = {"accepted": None, "candidates": None}
         flashes = results / artifacts.flashes_name(camera)
         if flashes.is_file():
-            entry["accepted"] = detection_figures(
-                Detections.from_csv(flashes), truth, camera, n_frames
-            )
+            loaded["accepted"][camera] = Detections.from_csv(flashes)
         candidates = results / artifacts.candidates_name(camera)
         if candidates.is_file():
-            entry["candidates"] = detection_figures(
-                Detections.from_npz(candidates), truth, camera, n_frames
-            )
-        cameras[f"cam{camera}"] = entry
+            loaded["candidates"][camera] = Detections.from_npz(candidates)
+    for camera in artifacts.CAMERAS:
+        n_frames = truth.n_frames1 if camera == 1 else truth.n_frames2
+        cameras[f"cam{camera}"] = {
+            kind: detection_figures(found[camera], truth, camera, n_frames)
+            if camera in found
+            else None
+            for kind, found in loaded.items()
+        }
+    stereo = {
+        kind: stereo_figures(found[1], found[2], truth) if len(found) == 2 else None
+        for kind, found in loaded.items()
+    }
     points = None
     trajectories = results / artifacts.TRAJECTORIES_CSV
     if trajectories.is_file():
         table = read_trajectories(trajectories)
         xyz = np.column_stack([table["x"], table["y"], table["z"]])
         points = point_figures(xyz, np.asarray(table["frame"]), truth)
-    return {"cameras": cameras, "points_3d": points}
+    return {"cameras": cameras, "stereo": stereo, "points_3d": points}
 
 
 # -- pooling -------------------------------------------------------------------------------
@@ -268,27 +304,27 @@ _RATIOS = {
 }
 
 
-def _pool_figures(parts: list[dict[str, Any]]) -> dict[str, Any] | None:
+def _pool_figures(parts: list[dict[str, Any] | None]) -> dict[str, Any] | None:
     """Sum the counts of several runs' figures (same layout) and recompute the ratios."""
-    parts = [p for p in parts if p is not None]
-    if not parts:
+    present = [p for p in parts if p is not None]
+    if not present:
         return None
     out: dict[str, Any] = {}
-    for key, value in parts[0].items():
+    for key, value in present[0].items():
         if isinstance(value, bool) or value is None or isinstance(value, float):
             continue
         if isinstance(value, int):
-            out[key] = sum(int(p.get(key) or 0) for p in parts)
+            out[key] = sum(int(p.get(key) or 0) for p in present)
         elif key == "false_by_kind":
             kinds: dict[str, int] = {}
-            for p in parts:
+            for p in present:
                 for kind, count in p[key].items():
                     kinds[kind] = kinds.get(kind, 0) + count
             out[key] = dict(sorted(kinds.items()))
         elif isinstance(value, list):
-            out[key] = _pool_bins([p[key] for p in parts])
+            out[key] = _pool_bins([p[key] for p in present])
     for name, (num, den) in _RATIOS.items():
-        if name in parts[0] and num in out:
+        if name in present[0] and num in out:
             denominator = den or ("n_detections" if "n_detections" in out else "n_points")
             out[name] = ratio(out[num], out.get(denominator, 0))
     if "n_detections" in out:
@@ -327,10 +363,15 @@ def pool(runs: Iterable[dict[str, Any]]) -> dict[str, Any]:
         }
         for cam in ("cam1", "cam2")
     }
+    stereo = {
+        kind: _pool_figures([(r.get("stereo") or {}).get(kind) for r in runs])
+        for kind in ("accepted", "candidates")
+    }
     return {
         "n_runs": len(runs),
         "seeds": [r.get("seed") for r in runs],
         "cameras": cameras,
+        "stereo": stereo,
         "points_3d": _pool_figures([r["points_3d"] for r in runs]),
     }
 
@@ -367,19 +408,22 @@ def format_table(rows: list[Row]) -> str:
 
     Columns: 2D recall of the accepted detections (all, and at peak SNR ≥ 5), the
     candidates' recall at SNR ≥ 5 (before acceptance), accepted precision, candidates
-    per frame, 3D recall (5 % of range; 2 % in brackets) and precision, 3D recall per
-    range bin, and the run's delay error (frames) and rotation error (degrees), which
-    explain a collapsed 3D recall.
+    per frame, the share of flash-frames seen by both cameras that both detected
+    (``2cam``: 3D recall with a perfect calibration), 3D recall (5 % of range; 2 % in
+    brackets) and precision, 3D recall per range bin, and the run's delay error
+    (frames) and rotation error (degrees), which explain a collapsed 3D recall.
     """
     header = (
         f"{'night':<20} {'recall c1/c2':>12} {'SNR>=5 c1/c2':>12} {'cand>=5 c1/c2':>13} "
-        f"{'prec c1/c2':>10} {'cand/frame':>10} {'3D rec':>6} {'(2%)':>6} {'3D prec':>7} "
+        f"{'prec c1/c2':>10} {'cand/frame':>10} {'2cam':>4} {'3D rec':>6} {'(2%)':>6} "
+        f"{'3D prec':>7} "
         f"{'dk':>3} {'rot':>5}  3D recall by range 0-5/5-8/8-20/>=20 m"
     )
     lines = [header, "-" * len(header)]
     for row in rows:
         e = row.entry
         points = e.get("points_3d")
+        stereo = (e.get("stereo") or {}).get("accepted")
         accuracy = e.get("accuracy") or {}
         delay = accuracy.get("delay_error_frames")
         rotation = accuracy.get("rotation_error_deg")
@@ -389,6 +433,7 @@ def format_table(rows: list[Row]) -> str:
             f"{_pair(e, 'candidates', 'recall_snr_ge5'):>13} "
             f"{_pair(e, 'accepted', 'precision'):>10} "
             f"{_pair(e, 'candidates', 'per_frame', 1):>10} "
+            f"{_f(stereo and stereo['recall']):>4} "
             f"{_f(points and points['recall']):>6} "
             f"({_f(points and points['recall_within_2pct'])}) "
             f"{_f(points and points['precision']):>7} "
@@ -417,6 +462,10 @@ def format_bins(name: str, entry: dict[str, Any]) -> str:
                     f" | {_f(c.get('found_rate'))} (n={b['n']})"
                 )
             lines.append(f"  {title:<9} {cam}  " + "   ".join(cells))
+    stereo = (entry.get("stereo") or {}).get("accepted")
+    if stereo is not None:
+        cells = [f"{b['label']}: {_f(b['found_rate'])} (n={b['n']})" for b in stereo["by_range_m"]]
+        lines.append("  both cameras by range m  " + "   ".join(cells))
     points = entry.get("points_3d")
     if points is not None:
         cells = [f"{b['label']}: {_f(b['found_rate'])} (n={b['n']})" for b in points["by_snr"]]
@@ -432,6 +481,17 @@ def format_bins(name: str, entry: dict[str, Any]) -> str:
         if parts:
             lines.append(f"  false positives {cam}  " + "; ".join(parts))
     return "\n".join(lines)
+
+
+def finite(value: Any) -> Any:
+    """``value`` (nested dicts and lists) with NaN and infinities as None: strict JSON."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [finite(v) for v in value]
+    return value
 
 
 def tolerances() -> dict[str, float]:

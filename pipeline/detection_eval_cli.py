@@ -287,6 +287,7 @@ def _eval_detection(args: argparse.Namespace) -> int:
         SCHEMA_VERSION,
         Row,
         bins_description,
+        finite,
         format_bins,
         format_table,
         pool,
@@ -353,5 +354,6 @@ def _eval_detection(args: argparse.Namespace) -> int:
             "pooled": pooled,
         }
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(document, indent=1) + "\n", encoding="utf-8")
+        text = json.dumps(finite(document), indent=1, allow_nan=False)
+        args.json.write_text(text + "\n", encoding="utf-8")
     return 1 if errors else 0

@@ -255,7 +255,11 @@ def peak_weight(
     and streaking lower it). Computed in blocks to bound memory."""
     n = len(u)
     out = np.zeros(n)
-    block = 2048
+    # Bound the (block, steps, K) and (block, K, K) arrays of `streak_weights` to ~1e7.
+    length = float(np.max(np.hypot(du, dv), initial=0.0))
+    size = 2 * np.ceil(WINDOW_SIGMAS * np.max(sigma, initial=0.0) + 0.5 * length) + 1
+    steps = np.ceil(length / 0.25) + 1
+    block = max(1, int(1e7 // (size * (2 * steps + size))))
     for lo in range(0, n, block):
         sl = slice(lo, lo + block)
         _, _, weight = streak_weights(u[sl], v[sl], sigma[sl], du[sl], dv[sl])

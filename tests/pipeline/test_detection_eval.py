@@ -15,8 +15,10 @@ from pipeline.detection_eval import (
     SCHEMA_VERSION,
     binned,
     detection_figures,
+    finite,
     point_figures,
     pool,
+    stereo_figures,
 )
 from pipeline.detections import Detections
 from pipeline.geometry import Pose
@@ -118,6 +120,29 @@ def test_detection_figures_on_hand_made_truth() -> None:
     assert [(rng[k]["n"], rng[k]["found"]) for k in rng] == [(1, 1), (1, 0), (1, 1), (1, 1)]
 
 
+def test_stereo_figures_count_flashes_detected_by_both_cameras() -> None:
+    truth = hand_truth()
+    cam2 = Detections.from_columns(
+        frame=[0, 1, 2, 3], x=[101.0, 101.5, 0.5, 51.0], y=[160.0, 160.0, 160.0, 100.0]
+    )
+    figures = stereo_figures(hand_detections(), cam2, truth)
+    # Rows 0-3 are seen by both cameras; row 1 is found by neither, row 4 by camera 2 only.
+    assert figures["n_truth"] == 4 and figures["n_found"] == 3 and figures["recall"] == 0.75
+    assert figures["n_truth_snr_ge5"] == 2 and figures["recall_snr_ge5"] == 1.0
+    rng = by_label(figures["by_range_m"])
+    assert [rng[k]["found"] for k in rng] == [1, 0, 1, 1]
+    # Nothing detected by camera 2: nothing for triangulation.
+    assert stereo_figures(hand_detections(), cam2.select(np.zeros(0, int)), truth)["n_found"] == 0
+
+
+def test_finite_makes_strict_json() -> None:
+    assert finite({"a": [1.0, math.nan, {"b": math.inf}], "c": "x", "d": 2}) == {
+        "a": [1.0, None, {"b": None}],
+        "c": "x",
+        "d": 2,
+    }
+
+
 def test_point_figures_on_hand_made_truth() -> None:
     truth = hand_truth()
     xyz = np.array([[3.1, 0, 0], [0, 6.05, 0], [20.0, 0, 0]])
@@ -187,6 +212,7 @@ def test_eval_detection_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture
     document = json.loads(out.read_text())
     assert document["schema_version"] == SCHEMA_VERSION
     assert set(document) == {"schema_version", "tolerances", "bins", "params", "runs", "pooled"}
+    json.loads(out.read_text(), parse_constant=pytest.fail)  # strict JSON: no NaN
     assert document["bins"]["snr"] == [0.0, 3.0, 5.0, 10.0, 20.0, None]
     assert document["bins"]["range_m"] == [0.0, 5.0, 8.0, 20.0, None]
     assert document["tolerances"]["detection_px"] == 2.0
@@ -206,6 +232,9 @@ def test_eval_detection_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture
     points = run["points_3d"]
     assert points["n_truth"] > 100 and points["n_points"] > 0
     assert 0.0 <= points["recall_within_2pct"] <= points["recall"] <= 1.0
+    stereo = run["stereo"]["accepted"]
+    assert stereo["n_truth"] == points["n_truth"] and stereo["recall"] > 0.9
+    assert points["recall"] <= stereo["recall"] + 0.02  # triangulation needs both cameras
     assert run["accuracy"]["delay_error_frames"] == 0
     assert document["pooled"]["clean"]["n_runs"] == 1
 
