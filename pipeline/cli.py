@@ -41,6 +41,7 @@ def _registrars() -> list:
     from pipeline import classifier_cli, commands
 
     registrars = [commands.register, classifier_cli.register]
+    registrars.append(__import__("pipeline.detection_eval_cli", fromlist=["register"]).register)
     for ep in entry_points(group=ENTRY_POINT_GROUP):
         try:
             registrars.append(ep.load())

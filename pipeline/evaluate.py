@@ -76,24 +76,15 @@ def evaluate_run(out_dir: Path, truth: GroundTruth) -> Accuracy:
     """Compare a run folder's results with the ground truth of its recording."""
     calibration = read_calibration(out_dir / artifacts.CALIBRATION_JSON)
     trajectories = read_trajectories(out_dir / artifacts.TRAJECTORIES_CSV)
-    both = _seen_by_both(truth)
-    true_xyz = truth.flashes.position()[both]
-    true_frame = truth.flashes.frame1[both]
-    true_range = np.linalg.norm(true_xyz, axis=1)
     xyz = np.column_stack([trajectories["x"], trajectories["y"], trajectories["z"]])
     frame = trajectories["frame"]
-
-    # Recall: each true flash-frame against the nearest output point of the same frame.
-    gap_truth, _ = _nearest_same_frame(xyz, frame, true_xyz, true_frame)
-    recall = _fraction(gap_truth <= RANGE_TOLERANCE * true_range)
-    # Precision: each output point against the nearest true flash of the same frame.
-    gap_point, nearest = _nearest_same_frame(true_xyz, true_frame, xyz, frame)
-    matched = np.isfinite(gap_point)
-    point_range = np.where(matched, true_range[np.minimum(nearest, len(true_range) - 1)], np.inf)
-    is_true = matched & (gap_point <= IDENTITY_TOLERANCE * point_range)
+    match = match_points(xyz, frame, truth)
+    recall = _fraction(match.found(RANGE_TOLERANCE))
+    is_true = match.point_is_true
+    point_range = match.point_range
     range_error = np.abs(np.linalg.norm(xyz, axis=1) - point_range)[is_true] / point_range[is_true]
-    firefly = truth.flashes.firefly_id[both]
-    purity = _purity(trajectories["trajectory_id"][is_true], firefly[nearest[is_true]])
+    firefly = truth.flashes.firefly_id[match.truth_rows]
+    purity = _purity(trajectories["trajectory_id"][is_true], firefly[match.nearest[is_true]])
     det = {c: Detections.from_csv(out_dir / artifacts.flashes_name(c)) for c in artifacts.CAMERAS}
     recall1, precision1 = detection_scores(det[1], truth, 1)
     recall2, precision2 = detection_scores(det[2], truth, 2)
@@ -105,7 +96,7 @@ def evaluate_run(out_dir: Path, truth: GroundTruth) -> Accuracy:
         translation_error_deg=float(
             np.degrees(angle_between(calibration.pose.translation, truth.pose.translation))
         ),
-        n_truth_flashes=int(both.sum()),
+        n_truth_flashes=len(match.truth_rows),
         recall_within_2pct=recall,
         n_points=len(frame),
         precision=_fraction(is_true) if len(frame) else 0.0,
@@ -119,25 +110,128 @@ def evaluate_run(out_dir: Path, truth: GroundTruth) -> Accuracy:
     )
 
 
-def detection_scores(
-    detections: Detections, truth: GroundTruth, camera: int
-) -> tuple[float, float]:
-    """Recall and precision of one camera's accepted detections against its visible flashes.
+@dataclass(frozen=True)
+class PointMatch:
+    """Triangulated points matched with the true flash-frames seen by both cameras.
+
+    Attributes
+    ----------
+    truth_rows : ndarray of int64
+        Rows of ``truth.flashes`` visible in both cameras (the 3D truth).
+    gap : ndarray
+        Per truth row, distance (metres) to the nearest output point of the same
+        camera-1 frame (inf where that frame has none).
+    true_range : ndarray
+        Per truth row, its distance from camera 1.
+    nearest : ndarray of int64
+        Per output point, the index (into ``truth_rows``) of the nearest true flash of
+        its frame (meaningless where ``point_range`` is inf).
+    point_range : ndarray
+        Per output point, the range of that nearest true flash (inf where its frame
+        has none).
+    point_is_true : ndarray of bool
+        Per output point: within `IDENTITY_TOLERANCE` of its range from that flash.
+    """
+
+    truth_rows: np.ndarray
+    gap: np.ndarray
+    true_range: np.ndarray
+    nearest: np.ndarray
+    point_range: np.ndarray
+    point_is_true: np.ndarray
+
+    def found(self, tolerance: float) -> np.ndarray:
+        """Per truth row: an output point lies within ``tolerance`` × its range."""
+        return self.gap <= tolerance * self.true_range
+
+
+def match_points(xyz: np.ndarray, frame: np.ndarray, truth: GroundTruth) -> PointMatch:
+    """Match output points (``xyz`` metres, camera-1 ``frame``) with the true flashes
+    seen by both cameras, both ways (nearest of the same frame, `_nearest_same_frame`)."""
+    truth_rows = np.flatnonzero(_seen_by_both(truth))
+    true_xyz = truth.flashes.position()[truth_rows]
+    true_frame = truth.flashes.frame1[truth_rows]
+    true_range = np.linalg.norm(true_xyz, axis=1)
+    gap_truth, _ = _nearest_same_frame(xyz, frame, true_xyz, true_frame)
+    gap_point, nearest = _nearest_same_frame(true_xyz, true_frame, xyz, frame)
+    matched = np.isfinite(gap_point)
+    point_range = np.where(matched, true_range[np.minimum(nearest, len(true_range) - 1)], np.inf)
+    return PointMatch(
+        truth_rows=truth_rows,
+        gap=gap_truth,
+        true_range=true_range,
+        nearest=nearest,
+        point_range=point_range,
+        point_is_true=matched & (gap_point <= IDENTITY_TOLERANCE * point_range),
+    )
+
+
+@dataclass(frozen=True)
+class DetectionMatch:
+    """One camera's detections matched with its visible true flash-frames.
+
+    Attributes
+    ----------
+    truth_rows : ndarray of int64
+        Rows of ``truth.flashes`` visible in the camera.
+    found : ndarray of bool
+        Per truth row: a detection of the same frame within `DETECTION_TOLERANCE_PX`.
+    true_detection : ndarray of bool
+        Per detection: a visible true flash of the same frame within that tolerance.
+    distance : ndarray
+        Per detection, the distance (equatorial pixels) to the nearest visible true
+        flash of its frame (inf where there is none).
+    """
+
+    truth_rows: np.ndarray
+    found: np.ndarray
+    true_detection: np.ndarray
+    distance: np.ndarray
+
+    @property
+    def recall(self) -> float:
+        return _fraction(self.found)
+
+    @property
+    def precision(self) -> float:
+        return _fraction(self.true_detection)
+
+
+def camera_points(u: np.ndarray, v: np.ndarray, width: int) -> np.ndarray:
+    """Pixels as points on a sphere whose equator is ``width`` long: chords between
+    them measure angles in equatorial pixels, across the seam and near the poles."""
+    scale = width / (2 * np.pi)  # chord length of one equatorial pixel ≈ 1
+    return pixel_to_bearing(u, v, width) * scale
+
+
+def match_detections(detections: Detections, truth: GroundTruth, camera: int) -> DetectionMatch:
+    """Match one camera's detections with its visible true flashes, both ways.
 
     A detection matches a visible true flash of the same frame within
     `DETECTION_TOLERANCE_PX` (angular distance expressed in equatorial pixels, so the
     seam and the poles are handled).
     """
     frame, u, v, visible = truth.flashes.in_camera(camera)
-    scale = truth.width / (2 * np.pi)  # chord length of one equatorial pixel ≈ 1
-    true_pts = pixel_to_bearing(u[visible], v[visible], truth.width) * scale
-    det_pts = pixel_to_bearing(detections.x, detections.y, truth.width) * scale
-    gap_truth, _ = _nearest_same_frame(det_pts, detections.frame, true_pts, frame[visible])
-    gap_det, _ = _nearest_same_frame(true_pts, frame[visible], det_pts, detections.frame)
-    return (
-        _fraction(gap_truth <= DETECTION_TOLERANCE_PX),
-        _fraction(gap_det <= DETECTION_TOLERANCE_PX),
+    rows = np.flatnonzero(visible)
+    true_pts = camera_points(u[rows], v[rows], truth.width)
+    det_pts = camera_points(detections.x, detections.y, truth.width)
+    gap_truth, _ = _nearest_same_frame(det_pts, detections.frame, true_pts, frame[rows])
+    gap_det, _ = _nearest_same_frame(true_pts, frame[rows], det_pts, detections.frame)
+    return DetectionMatch(
+        truth_rows=rows,
+        found=gap_truth <= DETECTION_TOLERANCE_PX,
+        true_detection=gap_det <= DETECTION_TOLERANCE_PX,
+        distance=gap_det,
     )
+
+
+def detection_scores(
+    detections: Detections, truth: GroundTruth, camera: int
+) -> tuple[float, float]:
+    """Recall and precision of one camera's accepted detections against its visible
+    flashes (`match_detections`)."""
+    match = match_detections(detections, truth, camera)
+    return match.recall, match.precision
 
 
 def _seen_by_both(truth: GroundTruth) -> np.ndarray:
@@ -145,10 +239,11 @@ def _seen_by_both(truth: GroundTruth) -> np.ndarray:
     return f.visible1 & f.visible2
 
 
-def _nearest_same_frame(
+def nearest_same_frame(
     ref_xyz: np.ndarray, ref_frame: np.ndarray, query_xyz: np.ndarray, query_frame: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Distance from each query point to the nearest reference point of the same frame.
+    """Distance from each query point to the nearest reference point of the same frame,
+    and that point's index.
 
     Frames are a fourth coordinate scaled far beyond any spatial distance, so the
     KD-tree never pairs points of different frames; inf where a frame has no reference.
@@ -162,6 +257,9 @@ def _nearest_same_frame(
     dist, index = tree.query(np.column_stack([query_xyz, query_frame * span]), k=1)
     too_far = dist >= span / 2  # nearest lies in another frame
     return np.where(too_far, np.inf, dist), index
+
+
+_nearest_same_frame = nearest_same_frame
 
 
 def _purity(trajectory_id: np.ndarray, firefly_id: np.ndarray) -> float:

@@ -22,6 +22,7 @@ so the same seed gives the same truth and the same pixels.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,7 +33,7 @@ from pipeline.simulation.config import SCENARIOS, SimulationConfig
 from pipeline.simulation.encode import ChapterWriter, chapter_sizes
 from pipeline.simulation.fireflies import Emissions, synthetic_emissions
 from pipeline.simulation.real3d import real_emissions
-from pipeline.simulation.render import spot_peak
+from pipeline.simulation.render import peak_weight, spot_peak, spot_sigma
 from pipeline.simulation.rig import Rig, draw_rig, stream
 from pipeline.simulation.scene import CameraRenderer, Scene, build_scene
 from pipeline.simulation.tables import ArtifactTruth, FlashTruth
@@ -120,17 +121,19 @@ class SimulationPlan:
             self.flashes,
             self.config.resolved_noise_sigma,
             stream(self.config.seed, f"noise{camera}"),
+            grain_sigma=self.config.grain_sigma,
+            grain_px=self.config.grain_px,
+            grain_rng=stream(self.config.seed, f"grain{camera}"),
         )
 
 
 def plan(config: SimulationConfig) -> SimulationPlan:
     """Draw the rig, the scene and the fireflies' flashes for ``config``."""
     rig = draw_rig(config)
+    scene = build_scene(config, rig)
+    flashes = flash_truth(emissions(config, rig), rig, config)
     return SimulationPlan(
-        config=config,
-        rig=rig,
-        scene=build_scene(config, rig),
-        flashes=flash_truth(emissions(config, rig), rig, config),
+        config=config, rig=rig, scene=scene, flashes=with_noise(flashes, scene, config)
     )
 
 
@@ -183,8 +186,56 @@ def emissions(config: SimulationConfig, rig: Rig) -> Emissions:
     rng = stream(config.seed, "fireflies")
     if config.scenario == "real3d":
         assert config.real3d_csv is not None  # guaranteed by validation
-        return real_emissions(config.real3d_csv, config.fps, rig, rng, config.real3d_swarms)
-    return synthetic_emissions(config, rig, rng)
+        emitted = real_emissions(config.real3d_csv, config.fps, rig, rng, config.real3d_swarms)
+    else:
+        emitted = synthetic_emissions(config, rig, rng)
+    lo, hi = config.intensity_range
+    if lo == hi == 1.0:
+        return emitted
+    factor = _per_firefly(
+        emitted,
+        stream(config.seed, "brightness"),
+        lambda r, n: np.exp(r.uniform(np.log(lo), np.log(hi), n)),
+    )
+    return dataclasses.replace(emitted, intensity=emitted.intensity * factor)
+
+
+def _per_firefly(
+    emitted: Emissions,
+    rng: np.random.Generator,
+    draw: Callable[[np.random.Generator, int], np.ndarray],
+) -> np.ndarray:
+    """A property drawn per firefly, per flash where the firefly is unknown (``-1``),
+    broadcast to the emission rows."""
+    per_firefly = draw(rng, int(emitted.firefly_id.max(initial=-1)) + 1)
+    per_flash = draw(rng, int(emitted.flash_id.max(initial=-1)) + 1)
+    known = emitted.firefly_id >= 0
+    return np.where(
+        known,
+        per_firefly[np.where(known, emitted.firefly_id, 0)] if len(per_firefly) else 0.0,
+        per_flash[emitted.flash_id] if len(per_flash) else 0.0,
+    )
+
+
+def velocities(flash_id: np.ndarray, frame: np.ndarray, position: np.ndarray) -> np.ndarray:
+    """Velocity (metres per frame, (n, 3)) of each flash-frame from the positions of the
+    same flash in the neighbouring frames: central differences inside a flash,
+    one-sided at its ends, zero for a flash seen in one frame only."""
+    n = len(frame)
+    order = np.lexsort((frame, flash_id))
+    f, k, p = flash_id[order], frame[order], position[order]
+    linked = (np.diff(f) == 0) & (np.diff(k) == 1)  # row i and i + 1 are consecutive frames
+    step = np.diff(p, axis=0)
+    forward = np.zeros((n, 3))
+    backward = np.zeros((n, 3))
+    has_next = np.zeros(n, dtype=bool)
+    has_prev = np.zeros(n, dtype=bool)
+    forward[:-1][linked], has_next[:-1] = step[linked], linked
+    backward[1:][linked], has_prev[1:] = step[linked], linked
+    count = has_next.astype(float) + has_prev
+    velocity = np.zeros((n, 3))
+    velocity[order] = (forward + backward) / np.maximum(count, 1.0)[:, None]
+    return velocity
 
 
 def flash_truth(emitted: Emissions, rig: Rig, config: SimulationConfig) -> FlashTruth:
@@ -201,6 +252,17 @@ def flash_truth(emitted: Emissions, rig: Rig, config: SimulationConfig) -> Flash
     hidden_from = np.where(hidden, rng.integers(1, 3, n_flashes), 0)[emitted.flash_id]
     frame1 = emitted.frame1
     frame2 = rig.camera_frames(frame1, 2)
+    n = len(frame1)
+    whiteness = np.zeros(n)
+    if config.flash_whiteness != (0.0, 0.0):
+        lo, hi = config.flash_whiteness
+        whiteness = _per_firefly(
+            emitted, stream(config.seed, "colour"), lambda r, k: r.uniform(lo, hi, k)
+        )
+    psf_rng = stream(config.seed, "psf")
+    half_exposure = (
+        0.5 * config.motion_blur * velocities(emitted.flash_id, frame1, emitted.position)
+    )
     columns = {}
     for camera, frame in ((1, frame1), (2, frame2)):
         u, v, distance = rig.project(emitted.position, camera)
@@ -211,6 +273,23 @@ def flash_truth(emitted: Emissions, rig: Rig, config: SimulationConfig) -> Flash
         columns[f"peak{camera}"] = gain * spot_peak(
             emitted.intensity, distance, config.flash_brightness
         )
+        columns[f"range{camera}"] = distance
+        if config.psf_sigma_px is None:
+            columns[f"psf{camera}"] = spot_sigma(distance)
+        else:
+            columns[f"psf{camera}"] = psf_rng.uniform(*config.psf_sigma_px, n_flashes)[
+                emitted.flash_id
+            ]
+        du, dv = np.zeros(n), np.zeros(n)
+        if config.motion_blur > 0:
+            u0, v0, _ = rig.project(emitted.position - half_exposure, camera)
+            u1, v1, _ = rig.project(emitted.position + half_exposure, camera)
+            du = np.mod(u1 - u0 + rig.width / 2, rig.width) - rig.width / 2
+            dv = v1 - v0
+        columns[f"streak_u{camera}"], columns[f"streak_v{camera}"] = du, dv
+        columns[f"amp{camera}"] = columns[f"peak{camera}"] * peak_weight(
+            u, v, columns[f"psf{camera}"], du, dv
+        )
     return FlashTruth(
         flash_id=emitted.flash_id,
         firefly_id=emitted.firefly_id,
@@ -220,8 +299,22 @@ def flash_truth(emitted: Emissions, rig: Rig, config: SimulationConfig) -> Flash
         y=emitted.position[:, 1],
         z=emitted.position[:, 2],
         intensity=emitted.intensity,
+        whiteness=whiteness,
         **columns,
     )
+
+
+def with_noise(flashes: FlashTruth, scene: Scene, config: SimulationConfig) -> FlashTruth:
+    """``flashes`` with the noise σ at each flash's pixel (``noise1``, ``noise2``) and
+    the peak signal-to-noise ratios ``snr1 = amp1 / noise1``, ``snr2``."""
+    columns = {}
+    for camera in (1, 2):
+        frame, u, v, _ = flashes.in_camera(camera)
+        noise = scene.noise_at(camera, frame, u, v, config.resolved_noise_sigma, config.grain_sigma)
+        columns[f"noise{camera}"] = noise
+        amp = flashes.camera_column("amp", camera)
+        columns[f"snr{camera}"] = amp / np.maximum(noise, 1e-9)
+    return dataclasses.replace(flashes, **columns)
 
 
 def _render_camera(
@@ -235,7 +328,12 @@ def _render_camera(
     sizes = chapter_sizes(config.n_frames, config.chapters[camera - 1])
     renderer = drawn.renderer(camera)
     paths = drawn.chapter_paths(out, camera)
-    with ChapterWriter(paths, sizes, config.codec, config.crf, config.fps, config.width) as writer:
+    bit_rate = None
+    if config.bits_per_pixel is not None:
+        bit_rate = round(config.bits_per_pixel * config.width * config.height * config.fps)
+    with ChapterWriter(
+        paths, sizes, config.codec, config.crf, config.fps, config.width, bit_rate=bit_rate
+    ) as writer:
         for frame in range(config.n_frames):
             writer.write(renderer.render(frame))
             if progress is not None:

@@ -199,6 +199,27 @@ def camera_background(
     proportion to how dark the sky gets.
     """
     rows, cols = np.mgrid[0 : rig.height, 0 : rig.width]
+    static, sky = _layers(landscape, rig, camera, rows, cols)
+    stars = np.clip(1.0 - faintest_sky / STARS_FADE_LUMA, 0.0, 1.0)
+    _add_stars(static, landscape, rig, camera, stars)
+
+    gain = np.float32(rig.gains[camera - 1])
+    static *= gain
+    static += np.float32(0.5)  # turns the final truncation to uint8 into rounding
+    sky_layer = (sky * gain).astype(np.float32)
+    return CameraBackground(
+        static=static,
+        sky=sky_layer,
+        static_luma=(static @ LUMA).astype(np.float32),
+        sky_luma=(sky_layer @ LUMA).astype(np.float32),
+    )
+
+
+def _layers(
+    landscape: Landscape, rig: Rig, camera: int, rows: NDArray, cols: NDArray
+) -> tuple[NDArray[np.float32], FloatArray]:
+    """Unit-gain static layer (vegetation, float32, no stars) and sky layer (per unit
+    of horizon sky luma) of ``camera`` at pixels ``rows``, ``cols`` (any shape)."""
     world = rig.camera_directions_in_world(pixel_to_bearing(cols, rows, rig.width), camera)
     origin = np.zeros(3) if camera == 1 else rig.position2
     hits = cast_rays(origin, world, landscape, -rig.camera_height_m, rig.width)
@@ -215,19 +236,21 @@ def camera_background(
     texture = TEXTURE_LUMA * landscape.texture(hits.point)
     vegetation = (1 - sky_fraction) * (base + texture)
     static = (vegetation[..., None] * VEGETATION_RGB).astype(np.float32)
-    stars = np.clip(1.0 - faintest_sky / STARS_FADE_LUMA, 0.0, 1.0)
-    _add_stars(static, landscape, rig, camera, stars)
+    return static, sky
 
+
+def background_luma_at(
+    landscape: Landscape, rig: Rig, camera: int, rows: NDArray, cols: NDArray
+) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """``static_luma`` and ``sky_luma`` of `camera_background` at pixels ``rows``,
+    ``cols`` (1-D), without rendering the whole frame; stars are left out (a few
+    faint points)."""
+    static, sky = _layers(landscape, rig, camera, rows, cols)
     gain = np.float32(rig.gains[camera - 1])
     static *= gain
-    static += np.float32(0.5)  # turns the final truncation to uint8 into rounding
+    static += np.float32(0.5)
     sky_layer = (sky * gain).astype(np.float32)
-    return CameraBackground(
-        static=static,
-        sky=sky_layer,
-        static_luma=(static @ LUMA).astype(np.float32),
-        sky_luma=(sky_layer @ LUMA).astype(np.float32),
-    )
+    return (static @ LUMA).astype(np.float32), (sky_layer @ LUMA).astype(np.float32)
 
 
 def _add_stars(

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal, Self
+from typing import Any, Literal, Self
 
 from pydantic import (
     BaseModel,
@@ -25,6 +25,13 @@ SCENARIOS: dict[str, str] = {
     "foliage": "wind-shaken leaves silhouetted against a bright sky: edges flicker in and out",
     "field": "a realistic mix: dusk sky, a lamp, the moon, a car, a flashlight, foliage, occlusion",
     "real3d": "flights and flash timing replayed from real 3D data of fireflies in a tent",
+    "hard-clean": "a clean night, but fireflies out to 20 m and dim down to the noise floor, "
+    "point-spread 0.6-2 px, motion streaks, yellow-green to near-white flashes, correlated "
+    "sensor grain, GoPro-like bitrate",
+    "hard-wind": "the hard fireflies before a bright sky behind trees swaying 1-6 px at "
+    "0.3-2 Hz, with sky glints blinking through holes in the leaves",
+    "hard-all": "every artifact at once (dusk sky, lamp, moon, car, flashlight, swaying "
+    "foliage with glints, occlusion) with the hard fireflies and high-ISO grain",
 }
 
 
@@ -65,6 +72,55 @@ SCENARIO_SPECS: dict[str, ScenarioSpec] = {
         noise_sigma=2.0,
     ),
     "real3d": ScenarioSpec(),
+    "hard-clean": ScenarioSpec(noise_sigma=1.0),
+    "hard-wind": ScenarioSpec(sky_start=240.0, sky_end=240.0, n_branches=9, noise_sigma=1.5),
+    "hard-all": ScenarioSpec(
+        sky_start=60.0,
+        sky_end=15.0,
+        n_lamps=1,
+        moon=True,
+        n_cars=1,
+        n_flashlights=1,
+        n_branches=6,
+        occlusion=0.1,
+        noise_sigma=2.0,
+    ),
+}
+
+#: Fireflies harder than the footage we tune on (issue 7): out to 20 m and down to the
+#: noise floor, varied point-spread, motion streaks, colours from yellow-green to nearly
+#: white, spatially correlated grain and a GoPro-like bitrate.
+HARD_FIREFLIES: dict[str, Any] = {
+    "range_m": (2.0, 20.0),
+    "range_spread": "log",
+    "n_fireflies": 15,
+    "speed_mps": (0.2, 1.5),
+    "intensity_range": (0.003, 1.5),
+    "psf_sigma_px": (0.6, 2.0),
+    "motion_blur": 1.0,
+    "flash_whiteness": (0.0, 1.0),
+    "grain_sigma": 1.5,
+    "grain_px": 1.2,
+    "bits_per_pixel": 0.16,
+}
+
+#: Configuration defaults of a scenario, applied to the fields a configuration does not
+#: set explicitly (the original scenarios have none: their defaults are the fields').
+SCENARIO_DEFAULTS: dict[str, dict[str, Any]] = {
+    "hard-clean": HARD_FIREFLIES,
+    "hard-wind": {
+        **HARD_FIREFLIES,
+        "sway_px": (1.0, 6.0),
+        "sway_hz": (0.3, 2.0),
+        "glints_per_branch": 15,
+    },
+    "hard-all": {
+        **HARD_FIREFLIES,
+        "grain_sigma": 3.0,
+        "sway_px": (1.0, 6.0),
+        "sway_hz": (0.3, 2.0),
+        "glints_per_branch": 15,
+    },
 }
 
 FloatRange = tuple[float, float]
@@ -106,6 +162,10 @@ class SimulationConfig(BaseModel):
         Peak luma above the background of a typical flash at 5 m.
     speed_mps, range_m : (low, high)
         Flight speeds; horizontal distances from the rig.
+    range_spread : {"uniform", "log"}
+        How fireflies spread over ``range_m``: ``uniform`` (most far out in the
+        original scenarios' 2–10 m) or ``log`` (log-uniform, so a wide range such as
+        2–20 m still has many near fireflies).
     occlusion : float or None
         Fraction of flashes hidden from one camera by vegetation.
     noise_sigma : float or None
@@ -119,6 +179,37 @@ class SimulationConfig(BaseModel):
         ``x,y,z,frame`` file (60 fps) replayed by the ``real3d`` scenario.
     real3d_swarms : int
         Stretches of that file replayed at once, each as a swarm at its own azimuth.
+    intensity_range : (low, high)
+        Factor on the emitted intensity of each firefly (of each flash where fireflies
+        are unknown), drawn log-uniformly: ``(1, 1)`` makes them all alike. The peak
+        luma grows as its square root (tone curve), falls as ``1 / range``.
+    psf_sigma_px : (low, high) or None
+        Point-spread σ in pixels drawn uniformly per flash-frame and camera; ``None``:
+        0.6–1.5 px growing as a flash comes closer (`render.spot_sigma`).
+    motion_blur : float
+        Fraction of the frame interval the shutter is open: a moving flash is
+        integrated along its path into a streak (0 = instantaneous, no streaks).
+    flash_whiteness : (low, high)
+        Flash colour per firefly (per flash where unknown), drawn uniformly:
+        0 = yellow-green (`render.FIREFLY_RGB`), 1 = nearly white (`render.WHITE_FLASH_RGB`).
+    grain_sigma : float
+        Spatially correlated sensor grain (high-ISO noise), luma σ per pixel, on top
+        of ``noise_sigma`` and shot noise; 0 = none.
+    grain_px : float
+        Correlation length of the grain: σ in pixels of the Gaussian that smooths it.
+    bits_per_pixel : float or None
+        Encode at an average bitrate of this many bits per pixel per frame
+        (``bits_per_pixel · width · height · fps`` bit/s; a GoPro Max spends ~0.16 at
+        5.6K, 80 Mbit/s) instead of the constant quality ``crf``; ``None`` = CRF.
+    sway_px : (low, high) or None
+        Wind sway of the foliage's branches: amplitude in pixels (at this recording's
+        width, seen from camera 1) drawn per branch; ``None`` = the original slow
+        random sway (~0.08 m RMS).
+    sway_hz : (low, high)
+        Sway frequency drawn per branch (with ``sway_px``).
+    glints_per_branch : int
+        Holes in the leaves per foliage branch through which the sky glints: small
+        bright spots that blink open for a frame or two as the leaves move.
     """
 
     model_config = ConfigDict(frozen=True, extra="forbid")
@@ -140,6 +231,7 @@ class SimulationConfig(BaseModel):
     flash_brightness: float = Field(160.0, gt=0)
     speed_mps: FloatRange = (0.2, 1.0)
     range_m: FloatRange = (2.0, 10.0)
+    range_spread: Literal["uniform", "log"] = "uniform"
     occlusion: float | None = Field(None, ge=0, le=1)
     noise_sigma: float | None = Field(None, ge=0, le=50)
     codec: Literal["h264", "hevc"] = "h264"
@@ -147,6 +239,25 @@ class SimulationConfig(BaseModel):
     chapters: IntRange = (1, 1)
     real3d_csv: Path | None = None
     real3d_swarms: int = Field(3, ge=1, le=12)
+    intensity_range: FloatRange = (1.0, 1.0)
+    psf_sigma_px: FloatRange | None = None
+    motion_blur: float = Field(0.0, ge=0, le=1)
+    flash_whiteness: FloatRange = (0.0, 0.0)
+    grain_sigma: float = Field(0.0, ge=0, le=50)
+    grain_px: float = Field(1.2, gt=0, le=5)
+    bits_per_pixel: float | None = Field(None, gt=0, le=24)
+    sway_px: FloatRange | None = None
+    sway_hz: FloatRange = (0.3, 2.0)
+    glints_per_branch: int = Field(0, ge=0, le=1000)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _scenario_defaults(cls, data: Any) -> Any:
+        """Fill the fields ``data`` leaves unset from the scenario's `SCENARIO_DEFAULTS`."""
+        if isinstance(data, dict):
+            defaults = SCENARIO_DEFAULTS.get(str(data.get("scenario", "clean")), {})
+            data = {**defaults, **data}
+        return data
 
     @property
     def height(self) -> int:
@@ -192,12 +303,26 @@ class SimulationConfig(BaseModel):
         "quiet_gap_s",
         "speed_mps",
         "range_m",
+        "intensity_range",
+        "psf_sigma_px",
+        "sway_px",
+        "sway_hz",
     )
     @classmethod
-    def _ordered_positive_range(cls, value: tuple, info: ValidationInfo) -> tuple:
+    def _ordered_positive_range(cls, value: tuple | None, info: ValidationInfo) -> tuple | None:
+        if value is None:
+            return value
         low, high = value
         if not 0 < low <= high:
             raise ValueError(f"{info.field_name} must satisfy 0 < low <= high, got {value}")
+        return value
+
+    @field_validator("flash_whiteness")
+    @classmethod
+    def _fraction_range(cls, value: FloatRange, info: ValidationInfo) -> FloatRange:
+        low, high = value
+        if not 0 <= low <= high <= 1:
+            raise ValueError(f"{info.field_name} must satisfy 0 <= low <= high <= 1, got {value}")
         return value
 
     @field_validator("chapters")

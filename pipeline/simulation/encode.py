@@ -32,7 +32,9 @@ class ChapterWriter:
     """Encode RGB frames into chapter files, switching file after each chapter's size.
 
     Frames are yuv420p, one keyframe per second (GoPro-like GOP), constant frame rate
-    ``fps`` (as an exact fraction for NTSC rates such as 29.97).
+    ``fps`` (as an exact fraction for NTSC rates such as 29.97). Quality is the
+    constant rate factor ``crf``, or with ``bit_rate`` (bit/s) an average bitrate, as
+    cameras record (x264/x265 ABR; ``crf`` is then unused).
     """
 
     def __init__(
@@ -43,12 +45,14 @@ class ChapterWriter:
         crf: int,
         fps: float,
         width: int,
+        bit_rate: int | None = None,
     ) -> None:
         if len(paths) != len(sizes):
             raise ValueError("one chapter size per path is required")
         self.paths, self.sizes = paths, sizes
         self.encoder, options = ENCODERS[codec]
-        self.options = {**options, "crf": str(crf)}
+        self.bit_rate = bit_rate
+        self.options = {**options, "crf": str(crf)} if bit_rate is None else dict(options)
         self.rate = Fraction(fps).limit_denominator(1001)
         self.width, self.height = width, width // 2
         self._chapter = -1
@@ -99,6 +103,8 @@ class ChapterWriter:
         assert isinstance(stream, av.video.stream.VideoStream)
         stream.width, stream.height = self.width, self.height
         stream.pix_fmt = "yuv420p"
+        if self.bit_rate is not None:
+            stream.bit_rate = self.bit_rate
         stream.codec_context.gop_size = max(1, round(float(self.rate)))
         self._container, self._stream = container, stream
         self._written = 0

@@ -65,8 +65,9 @@ def flights(rng: np.random.Generator, config: SimulationConfig, rig: Rig) -> Flo
     Velocities are Gaussian-smoothed white noise (turning over ``TURN_TIME_S``),
     scaled to a per-firefly speed in ``config.speed_mps``. The horizontal distance
     from the midpoint between the cameras is reflected into ``[range_lo + s/2,
-    far_i]`` (``far_i`` drawn per firefly, so most stay well inside the far limit)
-    and the altitude into ``ALTITUDE_M``.
+    far_i]`` (``far_i`` drawn per firefly, so most stay well inside the far limit;
+    uniformly in its upper 70 %, or log-uniformly from three times the near limit when
+    ``config.range_spread == "log"``) and the altitude into ``ALTITUDE_M``.
 
     Returns
     -------
@@ -77,7 +78,11 @@ def flights(rng: np.random.Generator, config: SimulationConfig, rig: Rig) -> Flo
     steps = stop - start
     near = config.range_m[0] + config.separation_m / 2
     far_limit = config.range_m[1] + config.separation_m / 2
-    far = rng.uniform(near + 0.3 * (far_limit - near), far_limit, n)
+    if config.range_spread == "log":
+        # Log-uniform: as many fireflies near as far, on a logarithmic scale of range.
+        far = np.exp(rng.uniform(np.log(min(3.0 * near, far_limit)), np.log(far_limit), n))
+    else:
+        far = rng.uniform(near + 0.3 * (far_limit - near), far_limit, n)
 
     velocity = gaussian_filter1d(
         rng.standard_normal((n, steps, 3)), TURN_TIME_S * config.fps, axis=1
@@ -87,7 +92,10 @@ def flights(rng: np.random.Generator, config: SimulationConfig, rig: Rig) -> Flo
     velocity *= (rng.uniform(*config.speed_mps, n) / rms)[:, None, None]
 
     azimuth = rng.uniform(0, 2 * np.pi, n)
-    rho = rng.uniform(near, far)
+    if config.range_spread == "log":
+        rho = np.exp(rng.uniform(np.log(near), np.log(far)))
+    else:
+        rho = rng.uniform(near, far)
     altitude = rng.uniform(*ALTITUDE_M, n)
     start_xy = np.stack([rho * np.cos(azimuth), rho * np.sin(azimuth), altitude], axis=-1)
     path = start_xy[:, None, :] + np.cumsum(velocity, axis=1) / config.fps

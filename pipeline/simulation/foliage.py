@@ -4,11 +4,17 @@ against the sky.
 Branches sway slowly, leaves flutter and twist fast (a twisting leaf shows its face,
 then its edge), so sky shows through changing gaps:
 background subtraction alone sees many flickering bright edges there.
+
+`with_wind` makes it harder (the ``hard-*`` scenarios): branches swing in the wind
+with a given amplitude (pixels) and frequency, and small holes between the leaves let
+the sky glint through for a frame or two as the leaves move: single bright spots in a
+dark canopy, the false positives that look most like a flash.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import dataclasses
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
@@ -38,6 +44,16 @@ FLUTTER_M = (0.01, 0.03)
 FLUTTER_HZ = (1.5, 5.0)
 #: Apparent size of a leaf seen edge-on, relative to face-on.
 EDGE_ON_FRACTION = 0.3
+#: Sky glints through leaf holes: the hole opens while the mean of two cosines at
+#: ``GLINT_HZ`` exceeds ``GLINT_THRESHOLD`` (irregular blinks of one to a few frames,
+#: open in ~5 % of the frames); at most it uncovers ``GLINT_COVER`` of a Gaussian spot
+#: of σ ``GLINT_SIGMA_PX`` pixels.
+GLINT_HZ = (1.0, 4.0)
+GLINT_THRESHOLD = 0.75
+GLINT_COVER = (0.3, 1.0)
+GLINT_SIGMA_PX = (0.5, 0.9)
+#: Glints lie within this fraction of a branch's leaf ellipsoid (where leaves are dense).
+GLINT_SPREAD = 0.7
 
 
 @dataclass(frozen=True)
@@ -75,6 +91,26 @@ class Foliage:
     flutter_phase: FloatArray
     twist_phase: FloatArray
     trunk: FloatArray
+    glint_rest: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+    glint_branch: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    glint_omega: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+    glint_phase: FloatArray = field(default_factory=lambda: np.zeros((0, 2)))
+    glint_cover: FloatArray = field(default_factory=lambda: np.zeros(0))
+    glint_sigma_px: FloatArray = field(default_factory=lambda: np.zeros(0))
+
+    @property
+    def n_glints(self) -> int:
+        return len(self.glint_rest)
+
+    def glints(self, step: int | np.ndarray) -> tuple[FloatArray, FloatArray]:
+        """Centres (…, n_glints, 3) in metres of the leaf holes at action frame(s)
+        ``step`` and how open they are (…, n_glints): the fraction of a Gaussian spot
+        of σ ``glint_sigma_px`` that shows the sky, 0 when closed."""
+        s = np.asarray(step)[..., None, None]
+        wave = np.cos(self.glint_omega * s + self.glint_phase).mean(axis=-1)
+        opening = np.clip((wave - GLINT_THRESHOLD) / (1.0 - GLINT_THRESHOLD), 0.0, 1.0)
+        centres = self.glint_rest + self.sway[step][..., self.glint_branch, :]
+        return centres, opening * self.glint_cover
 
     def discs(self, step: int) -> tuple[FloatArray, FloatArray]:
         """Centres (n, 3) and radii (n,) in metres of all leaves and trunk discs at
@@ -146,4 +182,68 @@ def draw_foliage(
         flutter_phase=rng.uniform(0, 2 * np.pi, n),
         twist_phase=rng.uniform(0, 2 * np.pi, n),
         trunk=trunk.reshape(-1, 3),
+    )
+
+
+def wind_sway(
+    rng: np.random.Generator,
+    centre: FloatArray,
+    tree: np.ndarray,
+    n_steps: int,
+    fps: float,
+    width: int,
+    amplitude_px: tuple[float, float],
+    frequency_hz: tuple[float, float],
+) -> FloatArray:
+    """Branch displacement (n_steps, n_branches, 3) of trees swinging in the wind.
+
+    Each tree swings at one frequency drawn in ``frequency_hz``; each branch with its
+    own amplitude drawn in ``amplitude_px`` (angle seen from camera 1 in equatorial
+    pixels of a ``width``-pixel frame) and a phase lag of up to ±0.5 rad, across the
+    line of sight and mostly horizontally.
+    """
+    count = len(centre)
+    n_trees = int(tree.max(initial=-1)) + 1
+    frequency = rng.uniform(*frequency_hz, n_trees)[tree]
+    phase = rng.uniform(0, 2 * np.pi, n_trees)[tree] + rng.uniform(-0.5, 0.5, count)
+    distance = np.linalg.norm(centre, axis=1)
+    amplitude_m = rng.uniform(*amplitude_px, count) * (2 * np.pi / width) * distance
+    sight = centre / distance[:, None]
+    across = np.cross([0.0, 0.0, 1.0], sight)
+    across /= np.linalg.norm(across, axis=1, keepdims=True)
+    up = np.cross(sight, across)
+    direction = across + rng.uniform(-0.3, 0.3, count)[:, None] * up
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    t = np.arange(n_steps)[:, None] / fps
+    swing = np.sin(2 * np.pi * frequency * t + phase)
+    return (amplitude_m * swing)[..., None] * direction
+
+
+def with_wind(
+    foliage: Foliage,
+    rng: np.random.Generator,
+    fps: float,
+    width: int,
+    amplitude_px: tuple[float, float] | None,
+    frequency_hz: tuple[float, float],
+    glints_per_branch: int,
+) -> Foliage:
+    """``foliage`` swinging in the wind (when ``amplitude_px`` is given) with
+    ``glints_per_branch`` sky glints per branch (`Foliage.glints`)."""
+    n_steps, count = foliage.sway.shape[:2]
+    tree = np.arange(count) % (-(-count // BRANCHES_PER_TREE))  # as `draw_foliage` groups them
+    sway = foliage.sway
+    if amplitude_px is not None:
+        sway = wind_sway(rng, foliage.centre, tree, n_steps, fps, width, amplitude_px, frequency_hz)
+    n = count * glints_per_branch
+    branch = np.repeat(np.arange(count), glints_per_branch)
+    return dataclasses.replace(
+        foliage,
+        sway=sway,
+        glint_rest=foliage.centre[branch] + _in_ball(rng, n, GLINT_SPREAD * BRANCH_SEMI_AXES_M),
+        glint_branch=branch,
+        glint_omega=2 * np.pi * rng.uniform(*GLINT_HZ, (n, 2)) / fps,
+        glint_phase=rng.uniform(0, 2 * np.pi, (n, 2)),
+        glint_cover=rng.uniform(*GLINT_COVER, n),
+        glint_sigma_px=rng.uniform(*GLINT_SIGMA_PX, n),
     )

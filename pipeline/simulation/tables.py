@@ -18,14 +18,22 @@ class Table:
 
     Subclasses are ``@dataclass(frozen=True)`` and list each column's dtype in
     ``DTYPES`` (same order as the fields) and printf formats of float columns in
-    ``FORMATS``.
+    ``FORMATS``. Columns added after files were first written are ``OPTIONAL``: they
+    come last, default to ``None`` (filled with NaN) and may be missing from a file.
     """
 
     DTYPES: ClassVar[dict[str, Any]]
     FORMATS: ClassVar[dict[str, str]] = {}
+    OPTIONAL: ClassVar[tuple[str, ...]] = ()
 
     def __post_init__(self) -> None:
         lengths = set()
+        absent = [name for name in self.OPTIONAL if getattr(self, name) is None]
+        if absent:
+            required = next(name for name in self.DTYPES if name not in absent)
+            n = len(np.atleast_1d(getattr(self, required)))
+            for name in absent:
+                object.__setattr__(self, name, np.full(n, np.nan))
         for name, dtype in self.DTYPES.items():
             col = np.ascontiguousarray(getattr(self, name), dtype=dtype)
             if col.ndim != 1:
@@ -70,18 +78,24 @@ class Table:
     def from_csv(cls, path: str | Path) -> Self:
         """Read a CSV written by `to_csv`.
 
+        Files written before the ``OPTIONAL`` columns existed lack them: they read as
+        NaN.
+
         Raises
         ------
         ValueError
-            If the header does not list exactly this table's columns or a value does
-            not parse; the message names the file and the column.
+            If the header does not list this table's columns (the optional ones may
+            be missing at its end) or a value does not parse; the message names the
+            file and the column.
         """
         path = Path(path)
         with open(path, encoding="utf-8") as fh:
             header = fh.readline().strip().split(",")
             body = fh.read()
-        if header != list(cls.DTYPES):
-            raise ValueError(f"{path}: header {header} differs from {list(cls.DTYPES)}")
+        names = list(cls.DTYPES)
+        missing = names[len(header) :]
+        if header != names[: len(header)] or not set(missing) <= set(cls.OPTIONAL):
+            raise ValueError(f"{path}: header {header} differs from {names}")
         text = np.zeros((0, len(header)), dtype=str)
         if body.strip():
             try:
@@ -90,8 +104,8 @@ class Table:
                 raise ValueError(f"{path}: {exc}") from None
         if text.shape[1] != len(header):
             raise ValueError(f"{path}: every row must have {len(header)} fields")
-        columns = {}
-        for i, (name, dtype) in enumerate(cls.DTYPES.items()):
+        columns: dict[str, Any] = dict.fromkeys(missing)
+        for i, (name, dtype) in enumerate(list(cls.DTYPES.items())[: len(header)]):
             try:
                 columns[name] = _parse_column(text[:, i], dtype)
             except ValueError as exc:
@@ -140,7 +154,31 @@ class FlashTruth(Table):
         profile included).
     peak1, peak2 : float64
         Peak of the rendered spot above the background in each camera, luma 0–255
-        scale before saturation (also where not visible).
+        scale before saturation (also where not visible): the peak of the continuous
+        point-spread, before pixel integration and motion streaking.
+
+    The following columns were added for the detection evaluation (issue 7); truth
+    files written before lack them (NaN when read):
+
+    range1, range2 : float64
+        Distance of the flash from each camera's centre, metres.
+    psf1, psf2 : float64
+        Point-spread σ in pixels in each camera.
+    streak_u1, streak_v1, streak_u2, streak_v2 : float64
+        Motion during the exposure, pixels: the spot is integrated from
+        ``(u, v) − ½ streak`` to ``(u, v) + ½ streak`` (0 without motion blur).
+    whiteness : float64
+        Flash colour: 0 yellow-green (`render.FIREFLY_RGB`) … 1 near-white.
+    amp1, amp2 : float64
+        Drawn peak amplitude: the most any pixel of the flash rises above the
+        background, luma 0–255 scale (RGB before encoding; the decoded, limited-range
+        Y plane shows 219/255 of it), after pixel integration and streaking, before
+        noise, saturation and compression.
+    noise1, noise2 : float64
+        σ of the sensor noise at the flash's pixel in that frame (read noise, shot
+        noise of the background, grain), same scale as ``amp``.
+    snr1, snr2 : float64
+        Peak signal-to-noise ratio ``amp / noise``.
     """
 
     flash_id: np.ndarray
@@ -159,7 +197,40 @@ class FlashTruth(Table):
     intensity: np.ndarray
     peak1: np.ndarray
     peak2: np.ndarray
+    # Optional (newer) columns: None = absent, filled with NaN.
+    range1: np.ndarray = None  # type: ignore[assignment]
+    range2: np.ndarray = None  # type: ignore[assignment]
+    psf1: np.ndarray = None  # type: ignore[assignment]
+    psf2: np.ndarray = None  # type: ignore[assignment]
+    streak_u1: np.ndarray = None  # type: ignore[assignment]
+    streak_v1: np.ndarray = None  # type: ignore[assignment]
+    streak_u2: np.ndarray = None  # type: ignore[assignment]
+    streak_v2: np.ndarray = None  # type: ignore[assignment]
+    whiteness: np.ndarray = None  # type: ignore[assignment]
+    amp1: np.ndarray = None  # type: ignore[assignment]
+    amp2: np.ndarray = None  # type: ignore[assignment]
+    noise1: np.ndarray = None  # type: ignore[assignment]
+    noise2: np.ndarray = None  # type: ignore[assignment]
+    snr1: np.ndarray = None  # type: ignore[assignment]
+    snr2: np.ndarray = None  # type: ignore[assignment]
 
+    OPTIONAL: ClassVar[tuple[str, ...]] = (
+        "range1",
+        "range2",
+        "psf1",
+        "psf2",
+        "streak_u1",
+        "streak_v1",
+        "streak_u2",
+        "streak_v2",
+        "whiteness",
+        "amp1",
+        "amp2",
+        "noise1",
+        "noise2",
+        "snr1",
+        "snr2",
+    )
     DTYPES: ClassVar[dict[str, Any]] = {
         "flash_id": np.int64,
         "firefly_id": np.int64,
@@ -177,6 +248,7 @@ class FlashTruth(Table):
         "intensity": np.float64,
         "peak1": np.float64,
         "peak2": np.float64,
+        **dict.fromkeys(OPTIONAL, np.float64),
     }
     FORMATS: ClassVar[dict[str, str]] = {
         "x": "%.6f",
@@ -189,6 +261,21 @@ class FlashTruth(Table):
         "intensity": "%.4f",
         "peak1": "%.2f",
         "peak2": "%.2f",
+        "range1": "%.4f",
+        "range2": "%.4f",
+        "psf1": "%.3f",
+        "psf2": "%.3f",
+        "streak_u1": "%.3f",
+        "streak_v1": "%.3f",
+        "streak_u2": "%.3f",
+        "streak_v2": "%.3f",
+        "whiteness": "%.3f",
+        "amp1": "%.3f",
+        "amp2": "%.3f",
+        "noise1": "%.4f",
+        "noise2": "%.4f",
+        "snr1": "%.3f",
+        "snr2": "%.3f",
     }
 
     def position(self) -> NDArray[np.float64]:
@@ -200,6 +287,10 @@ class FlashTruth(Table):
         if camera == 1:
             return self.frame1, self.u1, self.v1, self.visible1
         return self.frame2, self.u2, self.v2, self.visible2
+
+    def camera_column(self, name: str, camera: int) -> NDArray:
+        """Column ``name`` + camera number, e.g. ``camera_column("snr", 2)`` is ``snr2``."""
+        return getattr(self, f"{name}{camera}")
 
 
 @dataclass(frozen=True)

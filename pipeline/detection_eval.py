@@ -1,0 +1,511 @@
+"""How well the detector finds flashes: 2D recall and precision per camera, binned by
+peak signal-to-noise ratio and by range, candidate rates, and 3D recall and precision.
+
+Scores a run folder (`pipeline.run.process` output) against the simulator's ground
+truth (`pipeline.simulate.GroundTruth`), with the matching and tolerances of
+`pipeline.evaluate`:
+
+- 2D, per camera: a true flash-frame visible in the camera is *found* when a detection
+  of the same frame lies within `evaluate.DETECTION_TOLERANCE_PX` (equatorial pixels);
+  a detection is *true* when a visible true flash of its frame lies that close. Scored
+  twice: the accepted detections (``flashes_cam*.csv``) and every tracked candidate
+  before acceptance (``work/candidates_cam*.npz``).
+- 3D: a true flash-frame seen by both cameras is *found* when a triangulated point of
+  its camera-1 frame lies within `evaluate.IDENTITY_TOLERANCE` (5 %) of its range
+  (also reported at `evaluate.RANGE_TOLERANCE`, 2 %: the project's accuracy target);
+  a point is *true* when within 5 % of the range of the nearest true flash of its frame.
+
+Bins: peak SNR = drawn peak amplitude over the noise σ at the flash's pixel (truth
+columns ``snr1``/``snr2``; 3D uses the smaller of the two) and range from the camera
+(``range1``/``range2``; 3D uses camera 1's). Every figure keeps its counts, so runs
+(seeds) pool exactly (`pool`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from pipeline import artifacts
+from pipeline.detections import Detections
+from pipeline.evaluate import (
+    DETECTION_TOLERANCE_PX,
+    IDENTITY_TOLERANCE,
+    RANGE_TOLERANCE,
+    camera_points,
+    match_detections,
+    match_points,
+)
+from pipeline.results import read_trajectories
+from pipeline.simulate import GroundTruth
+
+#: Version of the JSON layout written by ``firefly3d eval-detection --json``.
+SCHEMA_VERSION = 1
+#: Peak-SNR bin edges (the last bin is open).
+SNR_EDGES: tuple[float, ...] = (0.0, 3.0, 5.0, 10.0, 20.0, math.inf)
+#: Range bin edges in metres (the last bin is open; the simulator stays within ~21 m).
+RANGE_EDGES_M: tuple[float, ...] = (0.0, 5.0, 8.0, 20.0, math.inf)
+#: The headline 2D figure: recall of flash-frames at or above this peak SNR (target 0.95).
+HEADLINE_SNR = 5.0
+#: A false detection this close (equatorial pixels) to a true flash of its frame is
+#: a fragment of it (halo, streak split), not an independent false positive.
+NEAR_FLASH_PX = 5.0
+
+
+# -- bins ---------------------------------------------------------------------------------
+
+
+def _label(lo: float, hi: float) -> str:
+    def fmt(x: float) -> str:
+        return f"{x:g}"
+
+    if math.isinf(hi):
+        return f">={fmt(lo)}"
+    return f"{fmt(lo)}-{fmt(hi)}"
+
+
+def ratio(numerator: float, denominator: float) -> float | None:
+    """``numerator / denominator``, None (JSON null) when the denominator is 0."""
+    return float(numerator) / denominator if denominator else None
+
+
+def binned(
+    values: NDArray, hits: Sequence[tuple[str, NDArray[np.bool_]]], edges: Sequence[float]
+) -> list[dict[str, Any]]:
+    """Count items and hits per bin of ``values``.
+
+    Parameters
+    ----------
+    values : ndarray
+        One value per item; NaN values (unknown, e.g. old truth files) go to a last
+        bin labelled ``unknown`` (listed only when it holds items).
+    hits : sequence of (name, ndarray of bool)
+        Per item flags; each bin gets ``<name>`` (count) and ``<name>_rate``
+        (count / n, None when the bin is empty). The first flag also gives ``recall``.
+    edges : sequence of float
+        Increasing bin edges; bin ``i`` is ``[edges[i], edges[i+1])``.
+
+    Returns
+    -------
+    list of dict
+        ``{"label", "lo", "hi", "n", <name>, <name>_rate, ...}``; ``hi`` is None for
+        an open last bin.
+    """
+    values = np.asarray(values, dtype=np.float64)
+    n_bins = len(edges) - 1
+    known = ~np.isnan(values)
+    inner = np.clip(np.searchsorted(edges, values, side="right") - 1, 0, n_bins - 1)
+    index = np.where(known, inner, n_bins)
+    counts = np.bincount(index, minlength=n_bins + 1)
+    sums = {
+        name: np.bincount(index, weights=flag.astype(np.float64), minlength=n_bins + 1)
+        for name, flag in hits
+    }
+    out = []
+    for i in range(n_bins + 1):
+        if i == n_bins and counts[i] == 0:
+            continue
+        lo, hi = (edges[i], edges[i + 1]) if i < n_bins else (math.nan, math.nan)
+        entry: dict[str, Any] = {
+            "label": _label(lo, hi) if i < n_bins else "unknown",
+            "lo": None if math.isnan(lo) else lo,
+            "hi": None if math.isinf(hi) or math.isnan(hi) else hi,
+            "n": int(counts[i]),
+        }
+        for name, _ in hits:
+            entry[name] = int(sums[name][i])
+            entry[f"{name}_rate"] = ratio(sums[name][i], counts[i])
+        out.append(entry)
+    return out
+
+
+# -- 2D -----------------------------------------------------------------------------------
+
+
+def false_positive_kinds(
+    detections: Detections,
+    is_true: NDArray[np.bool_],
+    distance: NDArray,
+    truth: GroundTruth,
+    camera: int,
+) -> dict[str, int]:
+    """What each false detection is: ``near_flash`` (within `NEAR_FLASH_PX` of a true
+    flash: a fragment), the kind of the artifact whose label radius holds it (``glint``,
+    ``foliage``, ``lamp``, …; `pipeline.simulation.ArtifactTruth`), or ``other``
+    (noise, compression)."""
+    false = np.flatnonzero(~is_true)
+    kinds = np.full(len(false), "other", dtype=object)
+    near = distance[false] <= NEAR_FLASH_PX
+    kinds[near] = "near_flash"
+    art = truth.artifacts
+    rows = np.flatnonzero(art.camera == camera)
+    todo = false[~near]
+    if len(rows) and len(todo):
+        pts = camera_points(art.u[rows], art.v[rows], truth.width)
+        det = camera_points(detections.x[todo], detections.y[todo], truth.width)
+        reach = float(art.radius[rows].max())
+        span = 10.0 * (truth.width + reach)  # frames far apart in a 4th coordinate
+        tree = cKDTree(np.column_stack([pts, art.frame[rows] * span]))
+        k = min(8, len(rows))
+        dist, idx = tree.query(
+            np.column_stack([det, detections.frame[todo] * span]), k=k, distance_upper_bound=reach
+        )
+        dist, idx = dist.reshape(len(todo), k), idx.reshape(len(todo), k)
+        valid = idx < len(rows)
+        inside = valid & (dist <= art.radius[rows][np.minimum(idx, len(rows) - 1)])
+        first = np.argmax(inside, axis=1)
+        hit = inside[np.arange(len(todo)), first]
+        owner = rows[np.minimum(idx[np.arange(len(todo)), first], len(rows) - 1)]
+        sub = np.flatnonzero(~near)
+        kinds[sub[hit]] = art.kind[owner[hit]]
+    names, counts = np.unique(kinds.astype(str), return_counts=True)
+    return {str(k): int(c) for k, c in zip(names, counts, strict=True)}
+
+
+def detection_figures(
+    detections: Detections, truth: GroundTruth, camera: int, n_frames: int
+) -> dict[str, Any]:
+    """Recall (overall, at SNR ≥ `HEADLINE_SNR`, per SNR and range bin), precision,
+    rates per frame and false positives by kind for one camera's detections."""
+    match = match_detections(detections, truth, camera)
+    flashes = truth.flashes
+    snr = flashes.camera_column("snr", camera)[match.truth_rows]
+    distance = flashes.camera_column("range", camera)[match.truth_rows]
+    strong = snr >= HEADLINE_SNR
+    n_true = int(match.true_detection.sum())
+    return {
+        "n_truth": len(match.truth_rows),
+        "n_found": int(match.found.sum()),
+        "recall": ratio(match.found.sum(), len(match.found)),
+        "n_truth_snr_ge5": int(strong.sum()),
+        "n_found_snr_ge5": int(match.found[strong].sum()),
+        "recall_snr_ge5": ratio(match.found[strong].sum(), strong.sum()),
+        "n_detections": len(detections),
+        "n_true": n_true,
+        "precision": ratio(n_true, len(detections)),
+        "n_frames": int(n_frames),
+        "per_frame": ratio(len(detections), n_frames),
+        "false_per_frame": ratio(len(detections) - n_true, n_frames),
+        "false_by_kind": false_positive_kinds(
+            detections, match.true_detection, match.distance, truth, camera
+        ),
+        "by_snr": binned(snr, [("found", match.found)], SNR_EDGES),
+        "by_range_m": binned(distance, [("found", match.found)], RANGE_EDGES_M),
+    }
+
+
+# -- stereo ---------------------------------------------------------------------------------
+
+
+def stereo_figures(
+    detections1: Detections, detections2: Detections, truth: GroundTruth
+) -> dict[str, Any]:
+    """Flash-frames seen by both cameras that were detected in both (each camera's 2D
+    match): what triangulation could reconstruct with a perfect calibration, an upper
+    bound on 3D recall that does not depend on the delay and pose estimates."""
+    flashes = truth.flashes
+    found = np.zeros((2, len(flashes)), dtype=bool)
+    for camera, detections in ((1, detections1), (2, detections2)):
+        match = match_detections(detections, truth, camera)
+        found[camera - 1, match.truth_rows[match.found]] = True
+    rows = np.flatnonzero(flashes.visible1 & flashes.visible2)
+    both = found[0, rows] & found[1, rows]
+    snr = np.fmin(flashes.snr1[rows], flashes.snr2[rows])
+    strong = snr >= HEADLINE_SNR
+    return {
+        "n_truth": len(rows),
+        "n_found": int(both.sum()),
+        "recall": ratio(both.sum(), len(rows)),
+        "n_truth_snr_ge5": int(strong.sum()),
+        "n_found_snr_ge5": int(both[strong].sum()),
+        "recall_snr_ge5": ratio(both[strong].sum(), strong.sum()),
+        "by_range_m": binned(flashes.range1[rows], [("found", both)], RANGE_EDGES_M),
+        "by_snr": binned(snr, [("found", both)], SNR_EDGES),
+    }
+
+
+# -- 3D -----------------------------------------------------------------------------------
+
+
+def point_figures(xyz: NDArray, frame: NDArray, truth: GroundTruth) -> dict[str, Any]:
+    """3D recall (within 5 % and 2 % of range), precision, and recall per range bin
+    (from camera 1) and per bin of the smaller of the two cameras' peak SNR."""
+    match = match_points(xyz, frame, truth)
+    found = match.found(IDENTITY_TOLERANCE)
+    found2 = match.found(RANGE_TOLERANCE)
+    flashes = truth.flashes
+    rows = match.truth_rows
+    snr = np.fmin(flashes.snr1[rows], flashes.snr2[rows])
+    flags = [("found", found), ("found_within_2pct", found2)]
+    return {
+        "n_truth": len(rows),
+        "n_found": int(found.sum()),
+        "recall": ratio(found.sum(), len(rows)),
+        "n_found_within_2pct": int(found2.sum()),
+        "recall_within_2pct": ratio(found2.sum(), len(rows)),
+        "n_points": len(frame),
+        "n_true": int(match.point_is_true.sum()),
+        "precision": ratio(match.point_is_true.sum(), len(frame)),
+        "by_range_m": binned(match.true_range, flags, RANGE_EDGES_M),
+        "by_snr": binned(snr, flags, SNR_EDGES),
+    }
+
+
+# -- a run ---------------------------------------------------------------------------------
+
+
+def score_run(results: Path, truth: GroundTruth) -> dict[str, Any]:
+    """Every figure of one run folder against its truth (what is missing is None)."""
+    cameras: dict[str, Any] = {}
+    loaded: dict[str, dict[int, Detections]] = {"accepted": {}, "candidates": {}}
+    for camera in artifacts.CAMERAS:
+        flashes = results / artifacts.flashes_name(camera)
+        if flashes.is_file():
+            loaded["accepted"][camera] = Detections.from_csv(flashes)
+        candidates = results / artifacts.candidates_name(camera)
+        if candidates.is_file():
+            loaded["candidates"][camera] = Detections.from_npz(candidates)
+    for camera in artifacts.CAMERAS:
+        n_frames = truth.n_frames1 if camera == 1 else truth.n_frames2
+        cameras[f"cam{camera}"] = {
+            kind: detection_figures(found[camera], truth, camera, n_frames)
+            if camera in found
+            else None
+            for kind, found in loaded.items()
+        }
+    stereo = {
+        kind: stereo_figures(found[1], found[2], truth) if len(found) == 2 else None
+        for kind, found in loaded.items()
+    }
+    points = None
+    trajectories = results / artifacts.TRAJECTORIES_CSV
+    if trajectories.is_file():
+        table = read_trajectories(trajectories)
+        xyz = np.column_stack([table["x"], table["y"], table["z"]])
+        points = point_figures(xyz, np.asarray(table["frame"]), truth)
+    return {"cameras": cameras, "stereo": stereo, "points_3d": points}
+
+
+# -- pooling -------------------------------------------------------------------------------
+
+_RATIOS = {
+    "recall": ("n_found", "n_truth"),
+    "recall_snr_ge5": ("n_found_snr_ge5", "n_truth_snr_ge5"),
+    "recall_within_2pct": ("n_found_within_2pct", "n_truth"),
+    "precision": ("n_true", None),  # denominator: n_detections or n_points
+    "per_frame": ("n_detections", "n_frames"),
+}
+
+
+def _pool_figures(parts: list[dict[str, Any] | None]) -> dict[str, Any] | None:
+    """Sum the counts of several runs' figures (same layout) and recompute the ratios."""
+    present = [p for p in parts if p is not None]
+    if not present:
+        return None
+    out: dict[str, Any] = {}
+    for key, value in present[0].items():
+        if isinstance(value, bool) or value is None or isinstance(value, float):
+            continue
+        if isinstance(value, int):
+            out[key] = sum(int(p.get(key) or 0) for p in present)
+        elif key == "false_by_kind":
+            kinds: dict[str, int] = {}
+            for p in present:
+                for kind, count in p[key].items():
+                    kinds[kind] = kinds.get(kind, 0) + count
+            out[key] = dict(sorted(kinds.items()))
+        elif isinstance(value, list):
+            out[key] = _pool_bins([p[key] for p in present])
+    for name, (num, den) in _RATIOS.items():
+        if name in present[0] and num in out:
+            denominator = den or ("n_detections" if "n_detections" in out else "n_points")
+            out[name] = ratio(out[num], out.get(denominator, 0))
+    if "n_detections" in out:
+        out["false_per_frame"] = ratio(out["n_detections"] - out["n_true"], out["n_frames"])
+    return out
+
+
+def _pool_bins(parts: list[list[dict[str, Any]]]) -> list[dict[str, Any]]:
+    merged: dict[str, dict[str, Any]] = {}
+    for bins in parts:
+        for entry in bins:
+            into = merged.setdefault(
+                entry["label"],
+                {k: v for k, v in entry.items() if k in ("label", "lo", "hi")} | {"n": 0},
+            )
+            into["n"] += entry["n"]
+            for key, value in entry.items():
+                if key not in ("label", "lo", "hi", "n") and not key.endswith("_rate"):
+                    into[key] = into.get(key, 0) + value
+    out = []
+    for entry in merged.values():
+        for key in [k for k in entry if k not in ("label", "lo", "hi", "n")]:
+            entry[f"{key}_rate"] = ratio(entry[key], entry["n"])
+        out.append(entry)
+    return sorted(out, key=lambda e: (e["lo"] is None, e["lo"] or 0.0))
+
+
+def pool(runs: Iterable[dict[str, Any]]) -> dict[str, Any]:
+    """Pool the figures of several runs (e.g. the seeds of a scenario): counts add up,
+    ratios are recomputed from the sums (not averaged)."""
+    runs = [r for r in runs if r.get("cameras")]
+    cameras = {
+        cam: {
+            kind: _pool_figures([r["cameras"][cam][kind] for r in runs])
+            for kind in ("accepted", "candidates")
+        }
+        for cam in ("cam1", "cam2")
+    }
+    stereo = {
+        kind: _pool_figures([(r.get("stereo") or {}).get(kind) for r in runs])
+        for kind in ("accepted", "candidates")
+    }
+    return {
+        "n_runs": len(runs),
+        "seeds": [r.get("seed") for r in runs],
+        "cameras": cameras,
+        "stereo": stereo,
+        "points_3d": _pool_figures([r["points_3d"] for r in runs]),
+    }
+
+
+# -- text ----------------------------------------------------------------------------------
+
+
+def _f(value: float | None, digits: int = 2) -> str:
+    return "-" if value is None else f"{value:.{digits}f}"
+
+
+def _pair(entry: dict[str, Any], kind: str, key: str, digits: int = 2) -> str:
+    values = []
+    for cam in ("cam1", "cam2"):
+        figures = entry["cameras"][cam][kind]
+        values.append(_f(None if figures is None else figures.get(key), digits))
+    return "/".join(values)
+
+
+def _range_recall(points: dict[str, Any] | None, key: str = "found_rate") -> str:
+    if points is None:
+        return "-"
+    return " / ".join(_f(b.get(key)) for b in points["by_range_m"] if b["label"] != "unknown")
+
+
+@dataclass(frozen=True)
+class Row:
+    name: str
+    entry: dict[str, Any]
+
+
+def format_table(rows: list[Row]) -> str:
+    """The summary table: one line per run (and per pooled scenario).
+
+    Columns: 2D recall of the accepted detections (all, and at peak SNR ≥ 5), the
+    candidates' recall at SNR ≥ 5 (before acceptance), accepted precision, candidates
+    per frame, the share of flash-frames seen by both cameras that both detected
+    (``2cam``: 3D recall with a perfect calibration), 3D recall (5 % of range; 2 % in
+    brackets) and precision, 3D recall per range bin, and the run's delay error
+    (frames) and rotation error (degrees), which explain a collapsed 3D recall.
+    """
+    header = (
+        f"{'night':<20} {'recall c1/c2':>12} {'SNR>=5 c1/c2':>12} {'cand>=5 c1/c2':>13} "
+        f"{'prec c1/c2':>10} {'cand/frame':>10} {'2cam':>4} {'3D rec':>6} {'(2%)':>6} "
+        f"{'3D prec':>7} "
+        f"{'dk':>3} {'rot':>5}  3D recall by range 0-5/5-8/8-20/>=20 m"
+    )
+    lines = [header, "-" * len(header)]
+    for row in rows:
+        e = row.entry
+        points = e.get("points_3d")
+        stereo = (e.get("stereo") or {}).get("accepted")
+        accuracy = e.get("accuracy") or {}
+        delay = accuracy.get("delay_error_frames")
+        rotation = accuracy.get("rotation_error_deg")
+        lines.append(
+            f"{row.name:<20} {_pair(e, 'accepted', 'recall'):>12} "
+            f"{_pair(e, 'accepted', 'recall_snr_ge5'):>12} "
+            f"{_pair(e, 'candidates', 'recall_snr_ge5'):>13} "
+            f"{_pair(e, 'accepted', 'precision'):>10} "
+            f"{_pair(e, 'candidates', 'per_frame', 1):>10} "
+            f"{_f(stereo and stereo['recall']):>4} "
+            f"{_f(points and points['recall']):>6} "
+            f"({_f(points and points['recall_within_2pct'])}) "
+            f"{_f(points and points['precision']):>7} "
+            f"{'-' if delay is None else delay:>3} {_f(rotation, 1):>5}  "
+            f"{_range_recall(points)}"
+        )
+    return "\n".join(lines)
+
+
+def format_bins(name: str, entry: dict[str, Any]) -> str:
+    """Recall per SNR and range bin, accepted and candidates, both cameras."""
+    lines = [f"{name}: recall by bin (accepted | candidates; n = true flash-frames)"]
+    for axis, title in (("by_snr", "peak SNR"), ("by_range_m", "range m")):
+        for cam in ("cam1", "cam2"):
+            acc = entry["cameras"][cam]["accepted"]
+            cand = entry["cameras"][cam]["candidates"]
+            if acc is None and cand is None:
+                continue
+            bins = (acc or cand)[axis]
+            cand_bins = {b["label"]: b for b in cand[axis]} if cand else {}
+            cells = []
+            for b in bins:
+                c = cand_bins.get(b["label"], {})
+                cells.append(
+                    f"{b['label']}: {_f(b['found_rate']) if acc else '-'}"
+                    f" | {_f(c.get('found_rate'))} (n={b['n']})"
+                )
+            lines.append(f"  {title:<9} {cam}  " + "   ".join(cells))
+    stereo = (entry.get("stereo") or {}).get("accepted")
+    if stereo is not None:
+        cells = [f"{b['label']}: {_f(b['found_rate'])} (n={b['n']})" for b in stereo["by_range_m"]]
+        lines.append("  both cameras by range m  " + "   ".join(cells))
+    points = entry.get("points_3d")
+    if points is not None:
+        cells = [f"{b['label']}: {_f(b['found_rate'])} (n={b['n']})" for b in points["by_snr"]]
+        lines.append("  3D by min peak SNR  " + "   ".join(cells))
+    for cam in ("cam1", "cam2"):
+        acc = entry["cameras"][cam]["accepted"]
+        cand = entry["cameras"][cam]["candidates"]
+        parts = []
+        for kind, figures in (("accepted", acc), ("candidates", cand)):
+            if figures:
+                counts = ", ".join(f"{k} {v}" for k, v in figures["false_by_kind"].items())
+                parts.append(f"{kind}: {counts or 'none'}")
+        if parts:
+            lines.append(f"  false positives {cam}  " + "; ".join(parts))
+    return "\n".join(lines)
+
+
+def finite(value: Any) -> Any:
+    """``value`` (nested dicts and lists) with NaN and infinities as None: strict JSON."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [finite(v) for v in value]
+    return value
+
+
+def tolerances() -> dict[str, float]:
+    return {
+        "detection_px": DETECTION_TOLERANCE_PX,
+        "identity_fraction_of_range": IDENTITY_TOLERANCE,
+        "range_fraction": RANGE_TOLERANCE,
+        "near_flash_px": NEAR_FLASH_PX,
+        "headline_snr": HEADLINE_SNR,
+    }
+
+
+def bins_description() -> dict[str, list[float | None]]:
+    def edges(values: Sequence[float]) -> list[float | None]:
+        return [None if math.isinf(v) else v for v in values]
+
+    return {"snr": edges(SNR_EDGES), "range_m": edges(RANGE_EDGES_M)}
