@@ -38,10 +38,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _registrars() -> list:
-    from pipeline import classifier_cli, commands
+    from pipeline import classifier_cli, commands, detection_eval_cli
 
-    registrars = [commands.register, classifier_cli.register]
-    registrars.append(__import__("pipeline.detection_eval_cli", fromlist=["register"]).register)
+    registrars = [commands.register, classifier_cli.register, detection_eval_cli.register]
     for ep in entry_points(group=ENTRY_POINT_GROUP):
         try:
             registrars.append(ep.load())

@@ -289,8 +289,8 @@ def _add_simulate(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--scenario",
         default="clean",
-        help="clean, twilight, lights, headlights, foliage, "
-        "field or real3d (see pipeline.simulate.SCENARIOS)",
+        help="clean, twilight, lights, headlights, foliage, field, real3d, or the harder "
+        "hard-clean, hard-wind, hard-all (see pipeline.simulation.config.SCENARIOS)",
     )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--width", type=int, default=640, help="frame width (height = width/2)")

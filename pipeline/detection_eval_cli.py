@@ -25,7 +25,7 @@ from pydantic import ValidationError
 from pipeline import artifacts
 
 if TYPE_CHECKING:
-    from pipeline.run import ProcessParams
+    from pipeline.params import ProcessParams
     from pipeline.simulate import GroundTruth, SimulationConfig
 
 
@@ -127,7 +127,7 @@ def _log(args: argparse.Namespace, message: str) -> None:
 def process_params(overrides_file: Path | None, no_classifier: bool) -> ProcessParams:
     """`ProcessParams` with a JSON file's overrides; ``no_classifier`` turns the patch
     classifier and the flicker test off (as ``firefly3d process --no-classifier``)."""
-    from pipeline.run import ProcessParams
+    from pipeline.params import ProcessParams
 
     overrides: dict[str, Any] = {}
     if overrides_file is not None:
