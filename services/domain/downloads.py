@@ -57,7 +57,7 @@ def download_url(
     filename = PurePosixPath(artifact.name).name
     payload = {"key": artifact.storage_key, "name": filename, "type": artifact.content_type}
     expires = settings.download_url_expires_s
-    signed = sign_payload(payload, settings.secret_key.get_secret_value(), expires)
+    signed = sign_payload(payload, settings.signing_key(), expires)
     return f"{signed_route}/{signed}"
 
 
@@ -86,7 +86,7 @@ def artifact_download(settings: Settings, storage: Storage, artifact: Artifact) 
 
 def signed_download(settings: Settings, storage: Storage, token: str) -> Stream:
     """The object a link from `download_url` names, if the link is valid."""
-    payload = verify_payload(token, settings.secret_key.get_secret_value())
+    payload = verify_payload(token, settings.signing_key())
     if payload is None or not {"key", "name", "type"} <= payload.keys():
         raise Forbidden("this download link is invalid or has expired")
     return _stream(storage, payload["key"], payload["name"], payload["type"])

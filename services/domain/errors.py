@@ -51,3 +51,7 @@ class Forbidden(DomainError):
 
 class Unavailable(DomainError):
     """A service the request needs (broker, storage) is not answering: retry later."""
+
+
+class TooManyRequests(DomainError):
+    """The caller must slow down (e.g. too many failed authentications)."""

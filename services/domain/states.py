@@ -169,9 +169,28 @@ def start_stage(stage: Stage) -> None:
         stage.warnings = [*stage.warnings, f"attempt {stage.attempt}: the worker was lost"]
     _stage(stage, S.RUNNING)
     stage.started_at, stage.finished_at = now(), None
+    stage.heartbeat_at, stage.stalled_at = stage.started_at, None
     stage.attempt += 1
     stage.deliveries += 1
     stage.progress = 0.0
+
+
+def requeue_stalled(stage: Stage, silent_s: float) -> str:
+    """A running stage's worker fell silent: queue a new attempt; returns its token.
+
+    The delivery count is kept (unlike `queue_stage`), so a stage that kills every
+    worker it lands on still fails after ``max_attempts``; the new token makes the
+    lost delivery's message, should it ever come back, a harmless stale one.
+    """
+    _stage(stage, S.QUEUED)
+    stage.stalled_at = stage.queued_at = now()
+    stage.queue_token = uuid.uuid4().hex
+    stage.warnings = [
+        *stage.warnings,
+        f"attempt {stage.attempt}: stalled (no heartbeat for {silent_s:.0f} s), "
+        f"re-queued at {stage.stalled_at:%Y-%m-%d %H:%M:%S} UTC",
+    ]
+    return stage.queue_token
 
 
 def succeed_stage(stage: Stage, metrics: dict[str, Any], warnings: list[str]) -> None:
@@ -207,3 +226,4 @@ def reset_stage(stage: Stage) -> None:
     stage.progress, stage.queue_token = 0.0, None
     stage.deliveries, stage.error, stage.metrics, stage.warnings = 0, None, {}, []
     stage.queued_at = stage.started_at = stage.finished_at = None
+    stage.heartbeat_at = stage.stalled_at = None

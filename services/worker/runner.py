@@ -41,6 +41,7 @@ from services.core.storage import Storage, TransientStorageError
 from services.domain import states, workflow
 from services.domain.repositories import jobs
 from services.domain.workflow import EnqueueError, Send, job_key, unit_of
+from services.worker.heartbeat import Heartbeat
 from services.worker.inputs import InputCache, InputRef, fetch_artifact
 
 log = logging.getLogger(__name__)
@@ -104,7 +105,13 @@ def execute(
         return
     try:
         rt.settings.work_dir.mkdir(parents=True, exist_ok=True)
-        with TemporaryDirectory(dir=rt.settings.work_dir, prefix=f"{claimed.unit.stage}-") as tmp:
+        beat = Heartbeat(
+            rt.sessions, rt.settings.heartbeat_interval_s, claimed.stage_id, claimed.token
+        )
+        with (
+            beat,
+            TemporaryDirectory(dir=rt.settings.work_dir, prefix=f"{claimed.unit.stage}-") as tmp,
+        ):
             workdir = Path(tmp)
             result = body(claimed, workdir, rt, ProgressReporter(rt, claimed))
             _check_current(rt, claimed)

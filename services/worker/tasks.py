@@ -11,7 +11,7 @@ from typing import Any
 
 from celery import Task
 from celery.exceptions import TimeLimitExceeded
-from celery.signals import worker_process_init
+from celery.signals import worker_process_init, worker_ready, worker_shutdown
 
 from pipeline.graph import STAGE_NAMES
 from services.core.db import make_engine, make_session_factory
@@ -19,6 +19,7 @@ from services.core.settings import get_settings
 from services.core.storage import make_storage
 from services.worker.celery_app import make_celery
 from services.worker.dispatch import sender, task_name
+from services.worker.heartbeat import Sweeper
 from services.worker.inputs import InputCache
 from services.worker.runner import Runtime, execute, fail_stage
 
@@ -45,6 +46,25 @@ def _fresh_connections(**_: Any) -> None:
         engine = runtime().sessions.kw["bind"]
         engine.dispose(close=False)
     runtime.cache_clear()
+
+
+@lru_cache(maxsize=1)
+def sweeper() -> Sweeper:
+    """The main process's sweeper of stalled stages (its own connections)."""
+    settings = get_settings()
+    sessions = make_session_factory(make_engine(settings.database_url, pool_size=1))
+    return Sweeper(settings, sessions, make_storage(settings), sender(app, settings.queue))
+
+
+@worker_ready.connect
+def _start_sweeper(**_: Any) -> None:
+    sweeper().start()
+
+
+@worker_shutdown.connect
+def _stop_sweeper(**_: Any) -> None:
+    if sweeper.cache_info().currsize:
+        sweeper().stop()
 
 
 class StageTask(Task):

@@ -37,8 +37,8 @@ def test_create_team_prints_a_working_token_once(
     assert token.startswith("ff3d_") and "cannot be shown again" in result.stderr
     with sessions() as session:
         team = session.scalars(select(Team).where(Team.name == name)).one()
-        assert team.token_hash == hash_token(token)
-        assert token not in {team.name, team.token_hash}
+        assert [t.token_hash for t in team.tokens] == [hash_token(token)]
+        assert token not in {team.name, team.tokens[0].token_hash}
     night = create_night(api_service.client, token)
     assert (
         api_service.client.get(f"/api/v1/nights/{night['id']}", headers=auth(token)).status_code
@@ -60,10 +60,25 @@ def test_service_commands_are_registered() -> None:
     assert "--concurrency" in worker.stdout and "--queues" in worker.stdout
 
 
+def test_serve_needs_the_shared_secret(database_url: str) -> None:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("FIREFLY3D_")}
+    env["FIREFLY3D_DATABASE_URL"] = database_url
+    result = subprocess.run(
+        [FIREFLY3D, "serve", "--port", str(free_port()), "--workers", "1"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert result.returncode != 0
+    assert "FIREFLY3D_SECRET_KEY is not set" in result.stderr
+
+
 def test_serve_starts_the_api(database_url: str) -> None:
     port = free_port()
     env = {k: v for k, v in os.environ.items() if not k.startswith("FIREFLY3D_")}
     env["FIREFLY3D_DATABASE_URL"] = database_url
+    env["FIREFLY3D_SECRET_KEY"] = "shared-by-every-api-process"
     server = subprocess.Popen(
         [FIREFLY3D, "serve", "--port", str(port)],
         env=env,

@@ -7,6 +7,7 @@ from collections.abc import AsyncIterator
 from typing import Annotated
 
 from fastapi import APIRouter, Path, Request, status
+from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import RedirectResponse, Response
 from starlette.requests import ClientDisconnect
 
@@ -29,6 +30,7 @@ from services.api.schemas import (
     PartsRequest,
     PartsSigned,
 )
+from services.api.status import Status
 from services.domain import access, downloads, jobs, uploads, workflow
 from services.domain.errors import Invalid
 
@@ -53,12 +55,44 @@ def create_job(
     return views.job_out(job, storage)
 
 
-@router.get("/{job_id}")
-def get_job(
-    job_id: uuid.UUID, principal: PrincipalDep, session: SessionDep, storage: StorageDep
-) -> JobOut:
-    """Status, per-stage progress, errors and the run summary so far."""
-    return views.job_out(access.visible_job(session, principal, job_id), storage)
+@router.get(
+    "/{job_id}",
+    response_model=JobOut,
+    responses={304: {"description": "unchanged since the ETag in If-None-Match"}},
+)
+async def get_job(
+    request: Request,
+    job_id: uuid.UUID,
+    principal: PrincipalDep,
+    session: SessionDep,
+    storage: StorageDep,
+) -> Response:
+    """Status, per-stage progress, errors and the run summary so far.
+
+    Answers carry an ``ETag``; with ``If-None-Match`` an unchanged job answers 304.
+    """
+
+    def read() -> Status:
+        try:
+            return request.app.state.status_cache.read(
+                session,
+                principal,
+                job_id,
+                request.headers.get("if-none-match"),
+                lambda: (
+                    views.job_out(access.visible_job(session, principal, job_id), storage)
+                    .model_dump_json()
+                    .encode()
+                ),
+            )
+        finally:
+            session.close()
+
+    status_ = await run_in_threadpool(read)
+    headers = {"ETag": status_.etag, "Cache-Control": "no-cache"}
+    if status_.body is None:
+        return Response(status_code=status.HTTP_304_NOT_MODIFIED, headers=headers)
+    return Response(status_.body, media_type="application/json", headers=headers)
 
 
 @router.post("/{job_id}/submit")

@@ -2,6 +2,7 @@
 "use strict";
 
 const FINISHED = ["succeeded", "failed", "cancelled"];
+const JOB_ID = document.getElementById("job-id").dataset.jobId;
 const $ = (id) => document.getElementById(id);
 
 function stageLabel(stage) {

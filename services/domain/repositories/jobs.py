@@ -6,16 +6,20 @@ import uuid
 from collections.abc import Iterable
 from typing import Any
 
-from sqlalchemy import select
+from sqlalchemy import Float, cast, func, select, text, update
 from sqlalchemy.dialects.postgresql import insert
 from sqlalchemy.orm import Session, joinedload, selectinload
 
-from services.core.models import Artifact, Job, Night, Stage, Team
+from services.core.models import Artifact, Job, JobStatus, Night, Stage, StageStatus, Team
 
 
 def get(session: Session, job_id: uuid.UUID | str) -> Job | None:
     """The job with its night, files and stages (one query per relation: pages poll this)."""
-    loads = [joinedload(Job.night), selectinload(Job.files), selectinload(Job.stages)]
+    loads = [
+        joinedload(Job.night).joinedload(Night.team),
+        selectinload(Job.files),
+        selectinload(Job.stages),
+    ]
     return session.get(Job, uuid.UUID(str(job_id)), options=loads)
 
 
@@ -62,3 +66,81 @@ def save_artifact(session: Session, values: dict[str, Any]) -> None:
         .values(**values)
         .on_conflict_do_update(index_elements=["job_id", "name"], set_=update)
     )
+
+
+ACTIVE = (JobStatus.QUEUED, JobStatus.RUNNING)
+
+
+def beat(session: Session, stage_id: int, token: str) -> bool:
+    """Record a sign of life of a running stage's delivery; False if it is no longer its own.
+
+    The database's clock is the only clock: workers on other machines may drift.
+    """
+    result = session.execute(
+        update(Stage)
+        .where(
+            Stage.id == stage_id,
+            Stage.queue_token == token,
+            Stage.status == StageStatus.RUNNING,
+        )
+        .values(heartbeat_at=func.now())
+    )
+    return bool(getattr(result, "rowcount", 0))
+
+
+def stalled(
+    session: Session, limit_s: float, job_id: uuid.UUID | None = None
+) -> list[tuple[uuid.UUID, int, float]]:
+    """``(job id, stage id, seconds silent)`` of running stages of active jobs whose
+    heartbeat is older than `limit_s` (by the database's clock)."""
+    last = func.coalesce(Stage.heartbeat_at, Stage.started_at, Stage.queued_at)
+    silent = cast(func.extract("epoch", func.now() - last), Float)
+    query = (
+        select(Stage.job_id, Stage.id, silent)
+        .join(Job, Job.id == Stage.job_id)
+        .where(
+            Stage.status == StageStatus.RUNNING,
+            Job.status.in_(ACTIVE),
+            last < func.now() - func.make_interval(0, 0, 0, 0, 0, 0, limit_s),
+        )
+    )
+    if job_id is not None:
+        query = query.where(Stage.job_id == job_id)
+    return [(j, s, float(t)) for j, s, t in session.execute(query)]
+
+
+def idle_active(session: Session) -> list[uuid.UUID]:
+    """Active jobs with no stage queued or running: an enqueue that failed left them
+    waiting for an `advance` nobody will call."""
+    busy = select(Stage.id).where(
+        Stage.job_id == Job.id, Stage.status.in_((StageStatus.QUEUED, StageStatus.RUNNING))
+    )
+    query = select(Job.id).where(Job.status.in_(ACTIVE), ~busy.exists())
+    return list(session.scalars(query))
+
+
+def try_advisory_lock(session: Session, key: int) -> bool:
+    """Take a transaction-scoped advisory lock if nobody holds it (one sweeper at a time)."""
+    return bool(session.scalar(text("SELECT pg_try_advisory_xact_lock(:key)"), {"key": key}))
+
+
+#: One statement: the job's team and a digest of the row versions (PostgreSQL's xmin,
+#: new on every update) of the job, its night, stages and files. Any change to what a
+#: status shows changes it; nothing else has to remember to bump a counter.
+VERSION = text(
+    """
+    SELECT n.team_id, md5(concat_ws(':', j.xmin::text, n.xmin::text,
+        (SELECT string_agg(s.id::text || '.' || s.xmin::text, ',' ORDER BY s.id)
+           FROM stages s WHERE s.job_id = j.id),
+        (SELECT string_agg(f.id::text || '.' || f.xmin::text, ',' ORDER BY f.id)
+           FROM input_files f WHERE f.job_id = j.id)))
+      FROM jobs j JOIN nights n ON n.id = j.night_id
+     WHERE j.id = :job_id
+    """
+)
+
+
+def version(session: Session, job_id: uuid.UUID) -> tuple[uuid.UUID, str] | None:
+    """``(team id, version)`` of a job, or None: see `VERSION`."""
+    row = session.execute(VERSION, {"job_id": job_id}).one_or_none()
+    return None if row is None else (row[0], row[1])
