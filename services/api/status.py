@@ -44,7 +44,8 @@ class StatusCache:
         render: Callable[[], bytes],
     ) -> Status:
         """The job's status for a caller who may see it (`NotFound` otherwise)."""
-        session.connection(execution_options={"isolation_level": "AUTOCOMMIT"})
+        if not session.in_transaction():  # auth came from the cache: no BEGIN/ROLLBACK
+            session.connection(execution_options={"isolation_level": "AUTOCOMMIT"})
         version = access.visible_job_version(session, principal, job_id)
         etag = f'"{version}"'
         if if_none_match is not None and etag in if_none_match.split(", "):

@@ -170,7 +170,14 @@ class InputFile(Base):
     chapter: Mapped[int] = mapped_column(Integer)
     filename: Mapped[str] = mapped_column(String(255))
     size: Mapped[int] = mapped_column(BigInteger)
-    sha256: Mapped[str] = mapped_column(String(64))
+    #: SHA-256 of the whole file, if the team declared it (the page does not: it hashes
+    #: per part while uploading, see `part_checksums`).
+    sha256: Mapped[str | None] = mapped_column(String(64))
+    #: Hex SHA-256 of each part (``"1"``, ``"2"``, …) received so far: signed into the
+    #: presigned S3 URL (S3 checks it), or computed by the API on the stream path.
+    part_checksums: Mapped[dict[str, Any]] = mapped_column(default=dict, server_default="{}")
+    #: SHA-256 of the concatenated part digests (`services.core.checksums`), once uploaded.
+    checksum: Mapped[str | None] = mapped_column(String(64))
     storage_key: Mapped[str] = mapped_column(String(512))
     upload_state: Mapped[str] = mapped_column(String(16), default=UploadState.PENDING)
     upload_id: Mapped[str | None] = mapped_column(String(1024))

@@ -108,6 +108,7 @@ def restart_upload(file: InputFile) -> None:
     if file.upload_state != U.PENDING:
         _upload(file, U.PENDING)
     file.upload_id, file.uploaded_at = None, None
+    file.part_checksums, file.checksum = {}, None
 
 
 # -- jobs ----------------------------------------------------------------------------------

@@ -226,7 +226,16 @@ def _claim_row(session: Session, job_id: str, key: str, token: str) -> Claim | s
     states.start_stage(stage)
     states.start_job(job)
     inputs = tuple(
-        InputRef(f.camera, f.chapter, f.filename, f.storage_key, f.size, f.sha256)
+        InputRef(
+            f.camera,
+            f.chapter,
+            f.filename,
+            f.storage_key,
+            f.size,
+            f.sha256,
+            f.part_size,
+            f.checksum,
+        )
         for f in job.files
     )
     return Claim(

@@ -162,6 +162,8 @@ def make_settings(
         "heartbeat_interval_s": 1.0,
         "stall_limit_s": 30.0,
         "sweep_interval_s": 2.0,
+        # Tests of access control send many bad tokens from one address.
+        "auth_failures_limit": 10_000,
         "min_part_bytes": 5 << 20,
         **overrides,
     }

@@ -1,4 +1,4 @@
-"""``/api/v1/admin``: every team's jobs and re-runs (admin token)."""
+"""``/api/v1/admin``: every team's jobs, re-runs, teams and tokens (admin token)."""
 
 from __future__ import annotations
 
@@ -9,9 +9,18 @@ from fastapi import APIRouter, Query
 
 from services.api import views
 from services.api.deps import AdminDep, SendDep, SessionDep, StorageDep
-from services.api.schemas import AdminJobOut, RerunOut, RerunRequest
+from services.api.schemas import (
+    AdminJobOut,
+    IssuedToken,
+    RerunOut,
+    RerunRequest,
+    TeamCreate,
+    TeamOut,
+    TokenCreate,
+    TokenOut,
+)
 from services.core.models import JobStatus
-from services.domain import admin
+from services.domain import admin, teams
 
 router = APIRouter(prefix="/admin", tags=["admin"])
 
@@ -54,3 +63,40 @@ def rerun_failed(
         RerunOut(job_id=job_id, from_stage=start, status=JobStatus.QUEUED)
         for job_id, start in admin.rerun_failed(session, storage, send, night_id)
     ]
+
+
+@router.get("/teams")
+def list_teams(_: AdminDep, session: SessionDep) -> list[TeamOut]:
+    """Every team with its tokens (never the secrets, which are not stored)."""
+    return [views.team_out(t) for t in teams.list_teams(session)]
+
+
+@router.post("/teams", status_code=201)
+def create_team(body: TeamCreate, _: AdminDep, session: SessionDep) -> IssuedToken:
+    """A new team and its first token (shown once)."""
+    return views.issued_out(teams.create_team(session, body.name, body.expires_in_days))
+
+
+@router.post("/teams/{team_id}/tokens", status_code=201)
+def issue_token(
+    team_id: uuid.UUID, body: TokenCreate, _: AdminDep, session: SessionDep
+) -> IssuedToken:
+    """A further token for a team (e.g. one per field laptop), shown once."""
+    team = teams.find_team(session, team_id)
+    return views.issued_out(teams.issue_token(session, team, body.label, body.expires_in_days))
+
+
+@router.post("/teams/{team_id}/rotate", status_code=201)
+def rotate_tokens(
+    team_id: uuid.UUID, body: TokenCreate, _: AdminDep, session: SessionDep
+) -> IssuedToken:
+    """Revoke every token of a team and issue a new one (a leaked or lost token)."""
+    team = teams.find_team(session, team_id)
+    label = body.label or "rotated"
+    return views.issued_out(teams.rotate(session, team, label, body.expires_in_days))
+
+
+@router.post("/tokens/{token_id}/revoke")
+def revoke_token(token_id: uuid.UUID, _: AdminDep, session: SessionDep) -> TokenOut:
+    """Revoke a token; API processes stop accepting it within FIREFLY3D_AUTH_CACHE_S."""
+    return views.token_out(teams.revoke_token(session, token_id))

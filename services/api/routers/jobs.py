@@ -50,8 +50,14 @@ CHUNK_UPLOAD = {
 def create_job(
     body: JobCreate, team: TeamDep, session: SessionDep, settings: SettingsDep, storage: StorageDep
 ) -> JobOut:
-    """Declare a stereo pair's chapter files; the answer says how to upload each."""
-    job = jobs.create_job(session, settings, team, body.night_id, body.files, body.params)
+    """Declare a stereo pair's chapter files; the answer says how to upload each.
+
+    Name an existing ``night_id``, or give the ``night`` to create with the job (both
+    or neither are stored).
+    """
+    night = body.night_id if body.night is None else body.night.model_dump()
+    assert night is not None  # JobCreate requires one of them
+    job = jobs.create_job(session, settings, team, night, body.files, body.params)
     return views.job_out(job, storage)
 
 
@@ -100,12 +106,14 @@ def submit_job(
     job_id: uuid.UUID,
     principal: PrincipalDep,
     session: SessionDep,
+    settings: SettingsDep,
     storage: StorageDep,
     send: SendDep,
 ) -> JobOut:
     """Queue a job whose files are all uploaded (its inputs are verified by the probe stage)."""
-    access.visible_job(session, principal, job_id)
-    workflow.submit(session, storage, send, job_id)
+    jobs.submit_job(
+        session, settings, storage, send, access.visible_job(session, principal, job_id)
+    )
     return views.job_out(access.visible_job(session, principal, job_id), storage)
 
 
@@ -153,7 +161,12 @@ async def put_file(
     session: SessionDep,
     storage: StorageDep,
 ) -> FileStatus:
-    """Stream a file, or a ``Content-Range`` piece of it, to local storage."""
+    """Stream a file, or a ``Content-Range`` piece of it, to local storage.
+
+    Pieces start where the upload stands (``received_bytes``) and end at a part
+    boundary; ``x-amz-checksum-sha256`` (base64 SHA-256) checks a one-part piece. A body
+    shorter than announced is 422 with ``Upload-Offset``: the whole parts are kept.
+    """
     upload = await uploads.stream_upload(
         session,
         storage,
@@ -162,6 +175,7 @@ async def put_file(
         camera,
         chapter,
         request.headers.get("content-range"),
+        request.headers.get("x-amz-checksum-sha256"),
         _body(request),
     )
     return views.file_status(upload, storage)
@@ -181,7 +195,9 @@ def sign_parts(
     """Presigned URLs to PUT parts of a multipart upload straight to S3."""
     job = access.visible_job(session, principal, job_id)
     file = uploads.input_file(job, camera, chapter)
-    signed = uploads.sign_parts(session, settings, storage, job, file, body.part_numbers)
+    signed = uploads.sign_parts(
+        session, settings, storage, job, file, body.part_numbers, body.checksums_sha256
+    )
     return views.parts_signed(signed)
 
 

@@ -144,3 +144,14 @@ def version(session: Session, job_id: uuid.UUID) -> tuple[uuid.UUID, str] | None
     """``(team id, version)`` of a job, or None: see `VERSION`."""
     row = session.execute(VERSION, {"job_id": job_id}).one_or_none()
     return None if row is None else (row[0], row[1])
+
+
+def active_count(session: Session, team_id: uuid.UUID) -> int:
+    """A team's jobs queued or running (for the concurrent-jobs quota)."""
+    query = (
+        select(func.count())
+        .select_from(Job)
+        .join(Night)
+        .where(Night.team_id == team_id, Job.status.in_(ACTIVE))
+    )
+    return int(session.scalar(query) or 0)
