@@ -7,7 +7,15 @@ import re
 import uuid
 from typing import Annotated, Any, Literal
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    WithJsonSchema,
+    field_validator,
+    model_validator,
+)
 
 from pipeline.graph import STAGE_NAMES
 from pipeline.params import MAX_SEPARATION_M
@@ -48,8 +56,20 @@ def _safe_filename(value: str) -> str:
 Line = Annotated[str, AfterValidator(_single_line)]
 Text = Annotated[str, AfterValidator(_no_control_chars)]
 FileName = Annotated[str, Field(min_length=1, max_length=255), AfterValidator(_safe_filename)]
-StageName = Literal["probe", "track", "merge", "sync", "pose", "triangulate", "link", "report"]
-assert set(StageName.__args__) == set(STAGE_NAMES)  # type: ignore[attr-defined]
+
+
+def _known_stage(value: str) -> str:
+    if value not in STAGE_NAMES:
+        raise ValueError(f"unknown stage {value!r}; stages: {', '.join(STAGE_NAMES)}")
+    return value
+
+
+#: A stage of the graph (`pipeline.graph.STAGE_NAMES`, never spelled out here).
+StageName = Annotated[
+    str,
+    AfterValidator(_known_stage),
+    WithJsonSchema({"type": "string", "enum": list(STAGE_NAMES)}),
+]
 
 FIRST_DATE = dt.date(2000, 1, 1)
 
@@ -248,6 +268,10 @@ class StageOut(BaseModel):
     progress: float
     started_at: dt.datetime | None
     finished_at: dt.datetime | None
+    heartbeat_at: dt.datetime | None = Field(description="last sign of life while running")
+    stalled_at: dt.datetime | None = Field(
+        description="when the stage was last re-queued because its worker fell silent"
+    )
     metrics: dict[str, Any]
     warnings: list[str]
     error: str | None
@@ -256,6 +280,9 @@ class StageOut(BaseModel):
 class JobOut(BaseModel):
     id: uuid.UUID
     night_id: uuid.UUID
+    site: str
+    date: dt.date
+    team: str
     status: str
     error: str | None
     progress: float = Field(description="fraction of the pipeline done, 0–1")
@@ -269,6 +296,17 @@ class JobOut(BaseModel):
     summary: dict[str, Any] = Field(
         description="the run summary (pipeline.summary) of the stages finished so far"
     )
+
+
+class LinkRequest(Strict):
+    name: str | None = Field(
+        default=None, description="an artifact's name; none: the zip of all the results"
+    )
+
+
+class LinkOut(BaseModel):
+    url: str = Field(description="works without a token until it expires")
+    expires_s: int
 
 
 class ArtifactOut(BaseModel):
@@ -337,4 +375,15 @@ class AdminJobOut(BaseModel):
     date: dt.date
     status: str
     error: str | None
+    created_at: dt.datetime
     updated_at: dt.datetime
+    stalled_at: dt.datetime | None = Field(
+        description="set while the job's work is stalled (a worker fell silent)"
+    )
+
+
+class ParamOut(BaseModel):
+    path: str = Field(description="dotted name, as in params overrides", examples=["sync.window_s"])
+    description: str
+    type: str
+    default: Any

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from datetime import datetime
+
 from pipeline import graph
 from services.api.schemas import (
     AdminJobOut,
@@ -74,6 +76,9 @@ def job_out(job: Job, storage: Storage) -> JobOut:
     return JobOut(
         id=job.id,
         night_id=job.night_id,
+        site=job.night.site,
+        date=job.night.date,
+        team=job.night.team.name,
         status=job.status,
         error=job.error,
         progress=workflow.progress(job.stages),
@@ -132,7 +137,7 @@ def issued_out(issued: Issued) -> IssuedToken:
     )
 
 
-def admin_job_out(job: Job, night: Night, team: Team) -> AdminJobOut:
+def admin_job_out(job: Job, night: Night, team: Team, stalled_at: datetime | None) -> AdminJobOut:
     return AdminJobOut(
         id=job.id,
         team=team.name,
@@ -141,5 +146,7 @@ def admin_job_out(job: Job, night: Night, team: Team) -> AdminJobOut:
         date=night.date,
         status=job.status,
         error=job.error,
+        created_at=job.created_at,
         updated_at=job.updated_at,
+        stalled_at=stalled_at,
     )

@@ -42,6 +42,8 @@ POSTGRES = os.environ.get("FIREFLY3D_TEST_POSTGRES", "postgresql://postgres@127.
 REDIS = os.environ.get("FIREFLY3D_TEST_REDIS", "redis://127.0.0.1:6379/0")
 RABBITMQ = os.environ.get("FIREFLY3D_TEST_RABBITMQ", "amqp://guest:guest@127.0.0.1:5672//")
 BUCKET = "firefly3d-test"
+#: Lifetime of download links in the tests: pages must work past it.
+LINK_LIFETIME_S = 3
 
 
 # moto's server logs every request at INFO: keep failure reports readable.
@@ -165,6 +167,7 @@ def make_settings(
         # Tests of access control send many bad tokens from one address.
         "auth_failures_limit": 10_000,
         "min_part_bytes": 5 << 20,
+        "download_url_expires_s": LINK_LIFETIME_S,
         **overrides,
     }
     return Settings.model_validate(values)

@@ -3,15 +3,16 @@
 from __future__ import annotations
 
 import uuid
-from typing import Annotated
+from typing import Annotated, Literal
 
 from fastapi import APIRouter, Query
 
 from services.api import views
-from services.api.deps import AdminDep, SendDep, SessionDep, StorageDep
+from services.api.deps import AdminDep, SendDep, SessionDep, SettingsDep, StorageDep
 from services.api.schemas import (
     AdminJobOut,
     IssuedToken,
+    ParamOut,
     RerunOut,
     RerunRequest,
     TeamCreate,
@@ -20,7 +21,7 @@ from services.api.schemas import (
     TokenOut,
 )
 from services.core.models import JobStatus
-from services.domain import admin, teams
+from services.domain import admin, parameters, teams
 
 router = APIRouter(prefix="/admin", tags=["admin"])
 
@@ -29,12 +30,16 @@ router = APIRouter(prefix="/admin", tags=["admin"])
 def list_jobs(
     _: AdminDep,
     session: SessionDep,
-    status: Annotated[JobStatus | None, Query(description="only jobs in this state")] = None,
+    settings: SettingsDep,
+    status: Annotated[
+        JobStatus | Literal["stalled"] | None,
+        Query(description="only jobs in this state; stalled: active jobs whose worker fell silent"),
+    ] = None,
     limit: Annotated[int, Query(ge=1, le=1000)] = 100,
 ) -> list[AdminJobOut]:
     """Jobs of every team, most recently changed first."""
-    rows = admin.list_jobs(session, status, limit)
-    return [views.admin_job_out(job, night, team) for job, night, team in rows]
+    rows = admin.list_jobs(session, settings, status, limit)
+    return [views.admin_job_out(*row) for row in rows]
 
 
 @router.post("/jobs/{job_id}/rerun")
@@ -100,3 +105,9 @@ def rotate_tokens(
 def revoke_token(token_id: uuid.UUID, _: AdminDep, session: SessionDep) -> TokenOut:
     """Revoke a token; API processes stop accepting it within FIREFLY3D_AUTH_CACHE_S."""
     return views.token_out(teams.revoke_token(session, token_id))
+
+
+@router.get("/params")
+def list_params(_: AdminDep) -> list[ParamOut]:
+    """Every processing parameter (dotted name for overrides, description, default)."""
+    return [ParamOut(**vars(p)) for p in parameters.parameters()]

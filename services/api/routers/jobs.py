@@ -27,6 +27,8 @@ from services.api.schemas import (
     FileStatus,
     JobCreate,
     JobOut,
+    LinkOut,
+    LinkRequest,
     PartsRequest,
     PartsSigned,
 )
@@ -249,6 +251,24 @@ def list_artifacts(
     """Every file the job's stages wrote, with a short-lived download link each."""
     job = access.visible_job(session, principal, job_id)
     return views.artifacts_out(settings, storage, job)
+
+
+@router.post("/{job_id}/links")
+def make_link(
+    job_id: uuid.UUID,
+    body: LinkRequest,
+    principal: PrincipalDep,
+    session: SessionDep,
+    settings: SettingsDep,
+    storage: StorageDep,
+) -> LinkOut:
+    """A fresh download link for one artifact, or for a zip of all the job's results.
+
+    Pages ask when the user clicks, so a page left open never offers an expired link.
+    """
+    job = access.visible_job(session, principal, job_id)
+    url = downloads.link(settings, storage, job, body.name, views.DOWNLOADS)
+    return LinkOut(url=url, expires_s=settings.download_url_expires_s)
 
 
 @router.get(

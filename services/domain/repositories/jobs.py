@@ -49,13 +49,41 @@ def stages_with_tokens(session: Session, tokens: Iterable[str]) -> list[Stage]:
     return list(session.scalars(select(Stage).where(Stage.queue_token.in_(list(tokens)))))
 
 
-def listing(session: Session, status: str | None, limit: int) -> list[tuple[Job, Night, Team]]:
-    """Jobs of every team with their night and team, most recently changed first."""
-    query = select(Job, Night, Team).join(Job.night).join(Night.team)
-    if status is not None:
+def _stalled_since(stall_limit_s: float) -> Any:
+    """When the job's work last stalled (NULL: it has not): a running stage silent for
+    longer than the limit (the sweeper has not run yet), or a stage the sweeper
+    re-queued that no worker has taken since."""
+    last = func.coalesce(Stage.heartbeat_at, Stage.started_at)
+    silent = (Stage.status == StageStatus.RUNNING) & (
+        last < func.now() - func.make_interval(0, 0, 0, 0, 0, 0, stall_limit_s)
+    )
+    requeued = (Stage.status == StageStatus.QUEUED) & Stage.stalled_at.is_not(None)
+    when = func.max(func.coalesce(Stage.stalled_at, last))
+    return (
+        select(when)
+        .where(Stage.job_id == Job.id, silent | requeued)
+        .correlate(Job)
+        .scalar_subquery()
+    )
+
+
+STALLED = "stalled"
+
+
+def listing(
+    session: Session, status: str | None, limit: int, stall_limit_s: float
+) -> list[tuple[Job, Night, Team, Any]]:
+    """Jobs of every team with their night, team and when they stalled (or None), most
+    recently changed first. `status` is a job status, or "stalled": active jobs whose
+    work stalled."""
+    stalled = _stalled_since(stall_limit_s)
+    query = select(Job, Night, Team, stalled).join(Job.night).join(Night.team)
+    if status == STALLED:
+        query = query.where(Job.status.in_(ACTIVE), stalled.is_not(None))
+    elif status is not None:
         query = query.where(Job.status == status)
     rows = session.execute(query.order_by(Job.updated_at.desc()).limit(limit))
-    return [(job, night, team) for job, night, team in rows]
+    return [(job, night, team, when) for job, night, team, when in rows]
 
 
 def save_artifact(session: Session, values: dict[str, Any]) -> None:
