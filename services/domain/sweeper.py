@@ -6,7 +6,7 @@ visibility timeout (above the longest task: about an hour), so the stage would s
 ``running`` that long. `sweep` re-queues every running stage whose heartbeat is older
 than ``stall_limit_s`` as a new attempt with a new token (the old message, if it is
 ever delivered again, is then stale and ignored), and advances active jobs that have
-nothing queued or running (an enqueue that failed). One sweep runs at a time across
+had nothing queued or running for as long (an enqueue that failed). One sweep runs at a time across
 the cluster (a PostgreSQL advisory lock); every worker tries periodically.
 """
 
@@ -52,7 +52,7 @@ def sweep(
                 messages.append(StageMessage(str(job.id), stage.key, stage.name, token))
     session.commit()
     workflow.send_or_revert(session, send, messages)
-    idle = jobs.idle_active(session)
+    idle = jobs.idle_active(session, stall_limit_s)
     session.commit()
     for job_id in idle:
         workflow.advance(session, storage, send, job_id)

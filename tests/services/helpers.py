@@ -159,9 +159,10 @@ def download(client: TestClient, token: str, job_id: str, name: str) -> bytes:
 
 
 def queued_stage(
-    sessions: SessionFactory, deliveries: int = 0, status: str = "queued"
+    sessions: SessionFactory, deliveries: int = 0, status: str = "queued", name: str = "sync"
 ) -> tuple[str, str, str]:
-    """A running job whose ``sync`` stage is queued with a token; returns (job, key, token)."""
+    """A running job whose one stage (``sync``) is queued with a token; returns (job, key,
+    token)."""
     token = uuid.uuid4().hex
     with transaction(sessions) as session:
         team = Team(name=f"r-{uuid.uuid4().hex[:8]}")
@@ -172,11 +173,11 @@ def queued_stage(
             status="running",
             params={"classifier": {"enabled": False}},
         )
-        stage = new_stage(Unit("sync"))
+        stage = new_stage(Unit(name))
         stage.status, stage.queue_token, stage.deliveries = status, token, deliveries
         job.stages = [stage]
         session.add(job)
-    return str(job.id), "sync", token
+    return str(job.id), name, token
 
 
 def stage_row(sessions: SessionFactory, job_id: str) -> Stage:

@@ -137,13 +137,21 @@ def stalled(
     return [(j, s, float(t)) for j, s, t in session.execute(query)]
 
 
-def idle_active(session: Session) -> list[uuid.UUID]:
-    """Active jobs with no stage queued or running: an enqueue that failed left them
-    waiting for an `advance` nobody will call."""
+def idle_active(session: Session, quiet_s: float) -> list[uuid.UUID]:
+    """Active jobs with no stage queued or running and no change for `quiet_s`: an
+    enqueue that failed left them waiting for an `advance` nobody will call. (The quiet
+    time keeps the sweep out of a transition that is still under way.)"""
     busy = select(Stage.id).where(
         Stage.job_id == Job.id, Stage.status.in_((StageStatus.QUEUED, StageStatus.RUNNING))
     )
-    query = select(Job.id).where(Job.status.in_(ACTIVE), ~busy.exists())
+    cutoff = func.now() - func.make_interval(0, 0, 0, 0, 0, 0, quiet_s)
+    recent = select(Stage.id).where(
+        Stage.job_id == Job.id,
+        (Stage.finished_at > cutoff) | (Stage.queued_at > cutoff),
+    )
+    query = select(Job.id).where(
+        Job.status.in_(ACTIVE), Job.updated_at < cutoff, ~busy.exists(), ~recent.exists()
+    )
     return list(session.scalars(query))
 
 
