@@ -9,7 +9,8 @@ Job:    created → uploading → queued → running → succeeded | failed | ca
         a finished job can be queued again (an admin re-run).
 Stage:  pending → queued → running → succeeded | failed | cancelled; a transient error
         puts a running stage back to queued, a refused broker a queued one to pending,
-        a re-run any of them to pending.
+        the sweeper a stalled running or queued one to queued (a new message), a
+        re-run any of them to pending.
 Upload: pending → uploading → uploaded; a bad checksum or a replacement → pending.
 """
 
@@ -37,7 +38,7 @@ JOB_MOVES: Mapping[str, frozenset[str]] = {
 }
 STAGE_MOVES: Mapping[str, frozenset[str]] = {
     S.PENDING: frozenset({S.QUEUED, S.CANCELLED}),
-    S.QUEUED: frozenset({S.PENDING, S.RUNNING, S.FAILED, S.CANCELLED}),
+    S.QUEUED: frozenset({S.QUEUED, S.PENDING, S.RUNNING, S.FAILED, S.CANCELLED}),
     S.RUNNING: frozenset({S.RUNNING, S.QUEUED, S.SUCCEEDED, S.FAILED, S.CANCELLED, S.PENDING}),
     S.SUCCEEDED: frozenset({S.PENDING}),
     S.FAILED: frozenset({S.PENDING}),
@@ -154,7 +155,7 @@ def queue_stage(stage: Stage) -> str:
     """Mark a pending stage queued with a fresh delivery token; returns the token."""
     _stage(stage, S.QUEUED)
     stage.queued_at, stage.queue_token = now(), uuid.uuid4().hex
-    stage.deliveries, stage.error = 0, None
+    stage.deliveries, stage.error, stage.heartbeat_at = 0, None, None
     return stage.queue_token
 
 
@@ -177,7 +178,8 @@ def start_stage(stage: Stage) -> None:
 
 
 def requeue_stalled(stage: Stage, silent_s: float) -> str:
-    """A running stage's worker fell silent: queue a new attempt; returns its token.
+    """The worker running a stage, or holding its message, fell silent: queue a new
+    attempt; returns its token.
 
     The delivery count is kept (unlike `queue_stage`), so a stage that kills every
     worker it lands on still fails after ``max_attempts``; the new token makes the
@@ -185,7 +187,7 @@ def requeue_stalled(stage: Stage, silent_s: float) -> str:
     """
     _stage(stage, S.QUEUED)
     stage.stalled_at = stage.queued_at = now()
-    stage.queue_token = uuid.uuid4().hex
+    stage.queue_token, stage.heartbeat_at = uuid.uuid4().hex, None
     stage.warnings = [
         *stage.warnings,
         f"attempt {stage.attempt}: stalled (no heartbeat for {silent_s:.0f} s), "
@@ -217,7 +219,7 @@ def retry_stage(stage: Stage, note: str) -> None:
     """A transient error: the stage waits for its next delivery."""
     if stage.status != S.QUEUED:
         _stage(stage, S.QUEUED)
-    stage.error = note
+    stage.error, stage.heartbeat_at = note, None
 
 
 def reset_stage(stage: Stage) -> None:

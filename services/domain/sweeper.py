@@ -1,9 +1,10 @@
 """Finding stalled work: stages whose worker died, jobs whose messages were lost.
 
-A worker heartbeats each running stage in PostgreSQL (`services.worker.heartbeat`).
-When a whole worker machine dies, its broker messages come back only after Redis's
-visibility timeout (above the longest task: about an hour), so the stage would sit
-``running`` that long. `sweep` re-queues every running stage whose heartbeat is older
+A worker heartbeats each running stage in PostgreSQL, and each stage whose message it
+holds but has not started yet (`services.worker.heartbeat`). When a whole worker
+machine dies, its broker messages come back only after Redis's visibility timeout
+(above the longest task: about an hour), so the stage would sit ``running`` (or
+``queued``) that long. `sweep` re-queues every such stage whose heartbeat is older
 than ``stall_limit_s`` as a new attempt with a new token (the old message, if it is
 ever delivered again, is then stale and ignored), and advances active jobs that have
 had nothing queued or running for as long (an enqueue that failed). One sweep runs at a time across
@@ -47,7 +48,7 @@ def sweep(
         job = workflow.locked(session, job_id)
         silent = {stage_id: s for _, stage_id, s in jobs.stalled(session, stall_limit_s, job_id)}
         for stage in job.stages:
-            if stage.id in silent and stage.status == StageStatus.RUNNING:
+            if stage.id in silent and stage.status in (StageStatus.RUNNING, StageStatus.QUEUED):
                 token = states.requeue_stalled(stage, silent[stage.id])
                 messages.append(StageMessage(str(job.id), stage.key, stage.name, token))
     session.commit()

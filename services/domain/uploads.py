@@ -97,6 +97,14 @@ def _file_checksum(file: InputFile) -> str | None:
     return composite([str(d) for d in digests]) if all(digests) else None
 
 
+def _locked(session: Session, job: Job) -> Job:
+    """The job read afresh under its row lock (until the session commits)."""
+    locked = jobs.lock(session, job.id)
+    if locked is None:
+        raise NotFound(f"job {job.id} not found")
+    return locked
+
+
 def _multipart(storage: Storage) -> S3Storage:
     if not isinstance(storage, S3Storage):
         raise Conflict(f"this server takes {storage.upload_mode} uploads: PUT the file to this URL")
@@ -151,8 +159,12 @@ def sign_parts(
 
     `checksums` are the parts' base64 SHA-256 digests: signed into the URLs and recorded.
     An upload started with them needs them for every part (S3 checks every part then).
+    Pages sign several parts at once: the job's row lock makes one of them start the
+    upload and keeps every digest.
     """
     s3 = _multipart(storage)
+    job = _locked(session, job)
+    file = input_file(job, file.camera, file.chapter)
     _require_uploadable(job, file)
     count = part_count(file)
     if max(numbers) > count:
@@ -189,6 +201,8 @@ def complete_multipart(
 ) -> UploadProgress:
     """Assemble the stored parts into the object after checking their number and sizes."""
     s3 = _multipart(storage)
+    job = _locked(session, job)
+    file = input_file(job, file.camera, file.chapter)
     _require_uploadable(job, file)
     if file.upload_id is None:
         raise Conflict("no part has been uploaded yet")

@@ -4,9 +4,12 @@
 ``heartbeat_at`` every ``heartbeat_interval_s``, whatever the stage is doing (pose can
 be silent for minutes; its progress callback is not called). When the process or the
 whole machine dies, the writes stop and `services.domain.sweeper` re-queues the stage
-after ``stall_limit_s``. `Sweeper` runs in every worker's main process and calls the
-sweep every ``sweep_interval_s``; the sweep itself makes sure that only one runs at a
-time across the cluster.
+after ``stall_limit_s``. A worker also holds messages it has not started yet (one per
+pool process may wait while the process finishes its task); `Reservations`, in the
+main process, beats those stages until they start, so that a message lost with its
+worker is found the same way. `Sweeper` runs in every worker's main process and calls
+the sweep every ``sweep_interval_s``; the sweep itself makes sure that only one runs
+at a time across the cluster.
 """
 
 from __future__ import annotations
@@ -54,6 +57,48 @@ class Heartbeat:
     ) -> None:
         self.stopped.set()
         self.thread.join()
+
+
+class Reservations:
+    """The tokens of the stage messages this worker received but has not started.
+
+    A daemon thread of the main process beats their stages at once when one arrives,
+    then every interval, and forgets those that are no longer queued.
+    """
+
+    def __init__(self, sessions: SessionFactory, interval_s: float) -> None:
+        self.sessions, self.interval_s = sessions, interval_s
+        self.tokens: set[str] = set()
+        self.lock = threading.Lock()
+        self.wake = threading.Event()
+        self.thread = threading.Thread(target=self._run, name="reservations", daemon=True)
+
+    def start(self) -> None:
+        self.thread.start()
+
+    def add(self, token: str) -> None:
+        with self.lock:
+            self.tokens.add(token)
+        self.wake.set()
+
+    def beat(self) -> None:
+        with self.lock:
+            held = set(self.tokens)
+        if not held:
+            return
+        with transaction(self.sessions) as session:
+            queued = jobs.beat_reserved(session, held)
+        with self.lock:
+            self.tokens -= held - queued
+
+    def _run(self) -> None:
+        while True:
+            self.wake.wait(self.interval_s)
+            self.wake.clear()
+            try:
+                self.beat()
+            except DBAPIError:
+                log.warning("could not write the heartbeat of reserved stages")
 
 
 class Sweeper:

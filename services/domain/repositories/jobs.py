@@ -50,18 +50,13 @@ def stages_with_tokens(session: Session, tokens: Iterable[str]) -> list[Stage]:
 
 
 def _stalled_since(stall_limit_s: float) -> Any:
-    """When the job's work last stalled (NULL: it has not): a running stage silent for
-    longer than the limit (the sweeper has not run yet), or a stage the sweeper
-    re-queued that no worker has taken since."""
-    last = func.coalesce(Stage.heartbeat_at, Stage.started_at)
-    silent = (Stage.status == StageStatus.RUNNING) & (
-        last < func.now() - func.make_interval(0, 0, 0, 0, 0, 0, stall_limit_s)
-    )
+    """When the job's work last stalled (NULL: it has not): a silent stage (the sweeper
+    has not run yet), or a stage the sweeper re-queued that no worker has taken since."""
     requeued = (Stage.status == StageStatus.QUEUED) & Stage.stalled_at.is_not(None)
-    when = func.max(func.coalesce(Stage.stalled_at, last))
+    last = func.coalesce(Stage.heartbeat_at, Stage.started_at)
     return (
-        select(when)
-        .where(Stage.job_id == Job.id, silent | requeued)
+        select(func.max(func.coalesce(Stage.stalled_at, last)))
+        .where(Stage.job_id == Job.id, _silent(stall_limit_s) | requeued)
         .correlate(Job)
         .scalar_subquery()
     )
@@ -116,21 +111,43 @@ def beat(session: Session, stage_id: int, token: str) -> bool:
     return bool(getattr(result, "rowcount", 0))
 
 
+def beat_reserved(session: Session, tokens: Iterable[str]) -> set[str]:
+    """Record that a worker holds these stages' messages (not started yet); returns the
+    tokens whose stages are still queued (the others started, or were reset)."""
+    result = session.execute(
+        update(Stage)
+        .where(Stage.queue_token.in_(list(tokens)), Stage.status == StageStatus.QUEUED)
+        .values(heartbeat_at=func.now())
+        .returning(Stage.queue_token)
+    )
+    return {str(token) for token in result.scalars()}
+
+
+def _older_than(column: Any, seconds: float) -> Any:
+    return column < func.now() - func.make_interval(0, 0, 0, 0, 0, 0, seconds)
+
+
+def _silent(limit_s: float) -> Any:
+    """A stage whose worker fell silent: running without a heartbeat for `limit_s`, or
+    queued with a message a worker took (and beat for) but stopped beating for."""
+    running = (Stage.status == StageStatus.RUNNING) & _older_than(
+        func.coalesce(Stage.heartbeat_at, Stage.started_at, Stage.queued_at), limit_s
+    )
+    held = (Stage.status == StageStatus.QUEUED) & _older_than(Stage.heartbeat_at, limit_s)
+    return running | held
+
+
 def stalled(
     session: Session, limit_s: float, job_id: uuid.UUID | None = None
 ) -> list[tuple[uuid.UUID, int, float]]:
-    """``(job id, stage id, seconds silent)`` of running stages of active jobs whose
-    heartbeat is older than `limit_s` (by the database's clock)."""
+    """``(job id, stage id, seconds silent)`` of the silent stages of active jobs (by the
+    database's clock)."""
     last = func.coalesce(Stage.heartbeat_at, Stage.started_at, Stage.queued_at)
     silent = cast(func.extract("epoch", func.now() - last), Float)
     query = (
         select(Stage.job_id, Stage.id, silent)
         .join(Job, Job.id == Stage.job_id)
-        .where(
-            Stage.status == StageStatus.RUNNING,
-            Job.status.in_(ACTIVE),
-            last < func.now() - func.make_interval(0, 0, 0, 0, 0, 0, limit_s),
-        )
+        .where(Job.status.in_(ACTIVE), _silent(limit_s))
     )
     if job_id is not None:
         query = query.where(Stage.job_id == job_id)

@@ -72,7 +72,10 @@ def upload_through_the_form(
     page.click("text=Advanced")
     page.fill("#params", json.dumps(TEST_PARAMS))
     page.click("#start")
-    page.wait_for_url("**/jobs/*", timeout=120_000)
+    try:
+        page.wait_for_url("**/jobs/*", timeout=120_000)
+    except Exception:
+        raise AssertionError(f"the upload did not finish: {page.inner_text('#status')}") from None
     return seen
 
 

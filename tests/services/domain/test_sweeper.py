@@ -84,3 +84,21 @@ def test_an_idle_active_job_is_advanced(sessions: SessionFactory, tmp_path: Path
     assert result is not None and uuid.UUID(job_id) in result.advanced
     assert [m.key for m in broker.sent if m.job_id == job_id] == ["probe"]
     assert stage_row(sessions, job_id).status == "queued"
+
+
+def test_a_message_held_by_a_lost_worker_is_requeued(
+    sessions: SessionFactory, tmp_path: Path
+) -> None:
+    """A queued stage whose message a worker took (and beat for) before dying."""
+    held, _, held_token = queued_stage(sessions)
+    waiting, _, _ = queued_stage(sessions)  # in the broker's queue: no heartbeat, no sweep
+    with transaction(sessions) as session:
+        assert jobs.beat_reserved(session, [held_token]) == {held_token}
+    silent_for(sessions, held, 2 * LIMIT_S)
+    with sessions() as session:
+        result = sweeper.sweep(session, LocalStorage(tmp_path), Broker(), LIMIT_S)
+    assert result is not None and f"{held}/sync" in result.requeued
+    assert f"{waiting}/sync" not in result.requeued
+    stage = stage_row(sessions, held)
+    assert stage.status == "queued" and stage.queue_token != held_token
+    assert stage.heartbeat_at is None  # until a worker takes the new message
