@@ -125,11 +125,22 @@ def execute(
     except TRANSIENT_ERRORS as exc:
         raise _retry(task, rt, claimed, exc) from exc
     except SoftTimeLimitExceeded:
-        limit = rt.settings.task_soft_time_limit_s
-        fail_stage(rt, job_id, key, token, f"took longer than the {limit} s time limit")
+        fail_stage(rt, job_id, key, token, time_limit_message(rt.settings, claimed))
     except Exception as exc:
         log.exception("stage %s of job %s failed", key, job_id)
         fail_stage(rt, job_id, key, token, _message(exc))
+
+
+def time_limit_message(settings: Settings, claimed: Claim) -> str:
+    """Why a stage was stopped at the soft time limit, and which parameter to change."""
+    limit = settings.task_soft_time_limit_s
+    message = f"took longer than the {limit} s time limit (FIREFLY3D_TASK_SOFT_TIME_LIMIT_S)"
+    if graph.stage(claimed.unit.stage).scope == "chunk":
+        message += (
+            f": re-run with a smaller chunk_s (now {claimed.params.chunk_s:g} s) so that "
+            "each chunk fits"
+        )
+    return message
 
 
 def run_unit(claimed: Claim, workdir: Path, rt: Runtime, progress: Progress) -> StageResult:

@@ -18,7 +18,7 @@ from services.core.settings import Settings
 from services.core.storage.local import LocalStorage
 from services.domain.workflow import StageMessage
 from services.worker.inputs import InputCache, InputError, InputRef
-from services.worker.runner import Runtime, backoff_s, claim
+from services.worker.runner import Runtime, backoff_s, claim, time_limit_message
 from tests.services.helpers import queued_stage, stage_row
 
 
@@ -129,3 +129,17 @@ def test_input_cache_verifies_and_reuses(tmp_path: Path) -> None:
     cache.fetch(storage, newer, tmp_path / "e" / "o.mp4")  # over 6000 bytes: oldest evicted
     assert [p.name for p in (tmp_path / "cache").iterdir()] == [cache.path_for(newer).name]
     assert first.read_bytes() == source.read_bytes()  # a hard link outlives eviction
+
+
+def test_time_limit_message_names_what_to_change(
+    runtime: tuple[Runtime, list], sessions: SessionFactory
+) -> None:
+    rt, _ = runtime
+    chunk = claim(rt, *queued_stage(sessions, name="track"))
+    whole = claim(rt, *queued_stage(sessions, name="sync"))
+    assert chunk is not None and whole is not None
+    assert time_limit_message(rt.settings, chunk).endswith(
+        "(FIREFLY3D_TASK_SOFT_TIME_LIMIT_S): re-run with a smaller chunk_s (now 60 s) so that "
+        "each chunk fits"
+    )
+    assert "chunk_s" not in time_limit_message(rt.settings, whole)
