@@ -50,6 +50,31 @@ def test_create_team_prints_a_working_token_once(
     assert duplicate.stdout == "" and f"team {name!r} already exists" in duplicate.stderr
 
 
+def test_tokens_are_listed_revoked_and_rotated(database_url: str, api_service: Service) -> None:
+    name = f"Rotators {uuid.uuid4().hex[:6]}"
+    first = run_cli(database_url, "admin", "create-team", name).stdout.strip()
+    laptop = run_cli(
+        database_url, "admin", "issue-token", name, "--label", "laptop", "--expires-in-days", "30"
+    )
+    assert laptop.returncode == 0, laptop.stderr
+    listing = run_cli(database_url, "admin", "list-tokens").stdout
+    mine = [line for line in listing.splitlines() if name in line]
+    assert len(mine) == 2 and any("laptop" in line and "valid until" in line for line in mine)
+    assert first not in listing and laptop.stdout.strip() not in listing
+
+    initial_id = next(line.split()[0] for line in mine if "initial" in line)
+    assert run_cli(database_url, "admin", "revoke-token", initial_id).returncode == 0
+    assert "revoked" in run_cli(database_url, "admin", "list-tokens").stdout
+    rotated = run_cli(database_url, "admin", "rotate-token", name)
+    assert rotated.returncode == 0, rotated.stderr
+    client = api_service.client
+    for old in (first, laptop.stdout.strip()):
+        assert client.get("/api/v1/nights", headers=auth(old)).status_code == 401
+    assert client.get("/api/v1/nights", headers=auth(rotated.stdout.strip())).status_code == 200
+    unknown = run_cli(database_url, "admin", "revoke-token", "not-an-id")
+    assert unknown.returncode == 1 and "is not a token ID" in unknown.stderr
+
+
 def test_service_commands_are_registered() -> None:
     result = subprocess.run([FIREFLY3D, "--help"], capture_output=True, text=True, check=True)
     for command in ("admin", "serve", "worker"):
