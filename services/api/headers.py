@@ -3,6 +3,7 @@
 The pages load scripts only from the app's own static files (no inline script, no CDN),
 so the Content-Security-Policy can forbid everything else. Exceptions, and why:
 ``'wasm-unsafe-eval'`` lets the upload page's hashing library compile its WebAssembly;
+``worker-src blob:`` lets ReDoc start its search worker;
 ``style-src 'unsafe-inline'`` is for the API docs (Swagger UI and ReDoc set inline
 styles; our own pages have none, and styles cannot run code); the object store's
 origin is allowed for presigned uploads (``connect-src``) and report plots
@@ -36,7 +37,7 @@ def content_security_policy(settings: Settings) -> str:
         [
             "default-src 'self'",
             "script-src 'self' 'wasm-unsafe-eval'",
-            "worker-src 'self'",
+            "worker-src 'self' blob:",
             "style-src 'self' 'unsafe-inline'",
             f"img-src 'self' data: blob:{extra}",
             f"connect-src 'self'{extra}",
