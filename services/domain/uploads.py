@@ -292,25 +292,41 @@ def _content_range(header: str | None, size: int) -> tuple[int, int | None]:
 
 
 class PartWriter:
-    """Appends to a partial upload and hashes it part by part (called in a thread)."""
+    """Appends to a partial upload and hashes it part by part (called in a thread).
 
-    def __init__(self, handle: BinaryIO, first: int, part_size: int, size: int) -> None:
-        self.handle, self.offset, self.part_size, self.size = handle, first, part_size, size
+    With `whole`, it also hashes everything it writes, so that a file sent in one
+    request from its first byte is checked against a declared SHA-256 without being
+    read again.
+    """
+
+    def __init__(
+        self, handle: BinaryIO, first: int, part_size: int, size: int, whole: bool
+    ) -> None:
+        self.handle, self.first, self.offset = handle, first, first
+        self.part_size, self.size = part_size, size
         self.hash = hashlib.sha256()
+        self.whole = hashlib.sha256() if whole else None
         self.digests: dict[int, str] = {}
 
-    def write(self, data: bytes) -> None:
+    def write(self, data: bytes | bytearray) -> None:
         view = memoryview(data)
         while view:
             part_end = min((self.offset // self.part_size + 1) * self.part_size, self.size)
             piece = view[: part_end - self.offset]
             self.handle.write(piece)
             self.hash.update(piece)
+            if self.whole is not None:
+                self.whole.update(piece)
             self.offset += len(piece)
             view = view[len(piece) :]
             if self.offset == part_end:
                 self.digests[-(-self.offset // self.part_size)] = self.hash.hexdigest()
                 self.hash = hashlib.sha256()
+
+    def file_sha256(self) -> str | None:
+        """SHA-256 of the whole file, if this writer wrote all of it."""
+        complete = self.whole is not None and self.first == 0 and self.offset == self.size
+        return self.whole.hexdigest() if complete and self.whole is not None else None
 
     def whole_end(self) -> int:
         """End of the last part written whole: where the upload continues."""
@@ -363,7 +379,7 @@ async def stream_upload(
         handle = await anyio.to_thread.run_sync(local.open_append, file.storage_key, first)
     except StorageError as exc:
         raise Conflict(str(exc)) from None
-    writer = PartWriter(handle, first, file.part_size, file.size)
+    writer = PartWriter(handle, first, file.part_size, file.size, file.sha256 is not None)
     try:
         too_long = await _write_body(writer, body, limit)
         kept = first if too_long else writer.whole_end()
@@ -376,8 +392,9 @@ async def stream_upload(
     digests = {
         n: d for n, d in writer.digests.items() if min(n * file.part_size, file.size) <= kept
     }
+    whole = None if kept != file.size else writer.file_sha256()
     upload = await anyio.to_thread.run_sync(
-        partial(_after_append, session, local, job_id, camera, chapter, digests)
+        partial(_after_append, session, local, job_id, camera, chapter, digests, whole)
     )
     if too_long:
         raise Invalid(["body"], f"body is longer than the {limit - first} bytes announced")
@@ -421,10 +438,10 @@ async def _write_body(writer: PartWriter, body: AsyncIterator[bytes], limit: int
             return True
         batch += chunk
         if len(batch) >= WRITE_BATCH:
-            await anyio.to_thread.run_sync(writer.write, bytes(batch))
-            batch.clear()
+            await anyio.to_thread.run_sync(writer.write, batch)
+            batch = bytearray()
     if batch:
-        await anyio.to_thread.run_sync(writer.write, bytes(batch))
+        await anyio.to_thread.run_sync(writer.write, batch)
     return False
 
 
@@ -453,7 +470,13 @@ def _after_append(
     camera: int,
     chapter: int,
     digests: dict[int, str],
+    whole_sha256: str | None,
 ) -> UploadProgress:
+    """Record the parts that arrived whole; publish the file once it is complete.
+
+    `whole_sha256` is the file's SHA-256 if this request carried all of it (else the
+    file is read again to check a declared SHA-256).
+    """
     job = jobs.lock(session, job_id)  # read afresh: the bytes took their time
     if job is None:
         raise NotFound(f"job {job_id} not found")
@@ -462,7 +485,7 @@ def _after_append(
     if whole_parts_bytes(file) == file.size:
         checksum = _file_checksum(file)
         if file.sha256 is not None:
-            actual = sha256_file(storage.partial_path(file.storage_key))
+            actual = whole_sha256 or sha256_file(storage.partial_path(file.storage_key))
             if actual != file.sha256:
                 storage.discard_partial(file.storage_key)
                 states.restart_upload(file)
