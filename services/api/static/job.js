@@ -14,9 +14,10 @@ const jobPage = {
   register(section) { this.sections.push(section); },
 };
 
+// "sync", "merge camera 1", "track camera 1, frames 0–1800" (chunks have frame ranges).
 function stageLabel(stage) {
-  if (stage.name === "track") return `track camera ${stage.camera}, frames ${stage.frame_start}–${stage.frame_stop}`;
-  return stage.camera ? `${stage.name} camera ${stage.camera}` : stage.name;
+  const camera = stage.camera ? `${stage.name} camera ${stage.camera}` : stage.name;
+  return stage.frame_start === null ? camera : `${camera}, frames ${stage.frame_start}–${stage.frame_stop}`;
 }
 
 const localTime = (iso) => new Date(iso).toLocaleString();
