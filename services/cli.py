@@ -51,12 +51,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     serve = subparsers.add_parser("serve", help="run the web API (uvicorn)")
     serve.add_argument("--host", default="127.0.0.1")
     serve.add_argument("--port", type=int, default=8000)
-    serve.add_argument(
-        "--workers",
-        type=int,
-        default=get_settings().api_workers,
-        help="API processes (default: FIREFLY3D_API_WORKERS)",
-    )
+    serve.add_argument("--workers", type=int, help="API processes (default: FIREFLY3D_API_WORKERS)")
     serve.set_defaults(func=_serve)
 
     worker = subparsers.add_parser("worker", help="run a Celery worker for the pipeline stages")
@@ -177,7 +172,7 @@ def _serve(args: argparse.Namespace) -> int:
         factory=True,
         host=args.host,
         port=args.port,
-        workers=args.workers,
+        workers=args.workers or get_settings().api_workers,
     )
     return 0
 
