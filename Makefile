@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: install demo test lint typecheck services bench clean
+.PHONY: install demo test lint typecheck services bench vendor clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -29,7 +29,7 @@ lint: install
 typecheck: install
 	$(BIN)/mypy pipeline services
 
-## Start PostgreSQL and Redis if they are not running (no-op when they are).
+## Start PostgreSQL, Redis and RabbitMQ if they are not running (no-op when they are).
 services:
 	bash scripts/ensure-services.sh
 
@@ -39,6 +39,11 @@ bench: install services
 	$(BIN)/python -m bench.bench_classifier
 	$(BIN)/python -m bench.bench_stages
 	$(BIN)/python -m bench.bench_service
+
+## Refresh the pages' front-end libraries (package.json) in services/api/static/vendor.
+vendor:
+	npm ci --no-audit --no-fund
+	npm run vendor
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Start the local PostgreSQL and Redis the tests use, if they are not up already.
+# Start the local PostgreSQL, Redis and RabbitMQ the tests use, if they are not up already.
 set -euo pipefail
 
 if ! pg_isready -h 127.0.0.1 -p 5432 -q 2>/dev/null; then
@@ -14,5 +14,14 @@ if ! redis-cli -h 127.0.0.1 -p 6379 ping >/dev/null 2>&1; then
   for _ in $(seq 30); do redis-cli -h 127.0.0.1 -p 6379 ping >/dev/null 2>&1 && break; sleep 1; done
 fi
 
+# The worker tests run on RabbitMQ too (guest/guest on 127.0.0.1:5672).
+rabbitmq_up() { (exec 3<>/dev/tcp/127.0.0.1/5672) 2>/dev/null; }
+if ! rabbitmq_up; then
+  echo "starting RabbitMQ"
+  rabbitmq-server -detached
+  for _ in $(seq 60); do rabbitmq_up && break; sleep 1; done
+fi
+
 pg_isready -h 127.0.0.1 -p 5432
 redis-cli -h 127.0.0.1 -p 6379 ping
+rabbitmq_up && echo "RabbitMQ up"

@@ -7,12 +7,22 @@ import re
 import uuid
 from typing import Annotated, Any, Literal
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    WithJsonSchema,
+    field_validator,
+    model_validator,
+)
 
 from pipeline.graph import STAGE_NAMES
 from pipeline.params import MAX_SEPARATION_M
 
 CONTROL_CHARS = re.compile(r"[\x00-\x08\x0b-\x1f\x7f]")
+#: Bidirectional controls: they make "evil\u202egpj.mp4" read as "evilmp4.jpg".
+BIDI_CONTROLS = re.compile("[\u061c\u200e\u200f\u202a-\u202e\u2066-\u2069]")
 FILENAME_FORBIDDEN = re.compile(r"[\x00-\x1f\x7f/\\]")
 
 
@@ -25,14 +35,20 @@ def _no_control_chars(value: str) -> str:
 def _single_line(value: str) -> str:
     if "\n" in value or "\t" in value:
         raise ValueError("must be a single line")
+    if BIDI_CONTROLS.search(value):
+        raise ValueError("must not contain bidirectional control characters")
     return _no_control_chars(value).strip()
 
 
 def _safe_filename(value: str) -> str:
-    if FILENAME_FORBIDDEN.search(value) or value.strip() in ("", ".", ".."):
+    if (
+        FILENAME_FORBIDDEN.search(value)
+        or not value.isprintable()
+        or value.strip() in ("", ".", "..")
+    ):
         raise ValueError(
-            f"file name {value!r} must be a plain name: no folders, '/', '\\', '..' "
-            "or control characters"
+            f"file name {value!r} must be a plain name of printable characters: no folders, "
+            "'/', '\\', '..', control or bidirectional characters"
         )
     return value
 
@@ -40,8 +56,20 @@ def _safe_filename(value: str) -> str:
 Line = Annotated[str, AfterValidator(_single_line)]
 Text = Annotated[str, AfterValidator(_no_control_chars)]
 FileName = Annotated[str, Field(min_length=1, max_length=255), AfterValidator(_safe_filename)]
-StageName = Literal["probe", "track", "merge", "sync", "pose", "triangulate", "link", "report"]
-assert set(StageName.__args__) == set(STAGE_NAMES)  # type: ignore[attr-defined]
+
+
+def _known_stage(value: str) -> str:
+    if value not in STAGE_NAMES:
+        raise ValueError(f"unknown stage {value!r}; stages: {', '.join(STAGE_NAMES)}")
+    return value
+
+
+#: A stage of the graph (`pipeline.graph.STAGE_NAMES`, never spelled out here).
+StageName = Annotated[
+    str,
+    AfterValidator(_known_stage),
+    WithJsonSchema({"type": "string", "enum": list(STAGE_NAMES)}),
+]
 
 FIRST_DATE = dt.date(2000, 1, 1)
 
@@ -111,7 +139,12 @@ class FileDeclaration(Strict):
     chapter: int = Field(ge=0, le=998, description="0-based position in the camera's recording")
     filename: FileName = Field(examples=["GS010042.mp4"])
     size: int = Field(gt=0, description="bytes")
-    sha256: str = Field(description="hex SHA-256 of the whole file", examples=["0" * 64])
+    sha256: str | None = Field(
+        default=None,
+        description="hex SHA-256 of the whole file, checked if given (optional: the parts' "
+        "checksums are recorded while uploading)",
+        examples=["0" * 64],
+    )
 
     @field_validator("camera")
     @classmethod
@@ -122,7 +155,9 @@ class FileDeclaration(Strict):
 
     @field_validator("sha256")
     @classmethod
-    def _hex_digest(cls, value: str) -> str:
+    def _hex_digest(cls, value: str | None) -> str | None:
+        if value is None:
+            return None
         if not re.fullmatch(r"[0-9a-fA-F]{64}", value):
             raise ValueError("sha256 must be 64 hexadecimal digits")
         return value.lower()
@@ -131,12 +166,21 @@ class FileDeclaration(Strict):
 class JobCreate(Strict):
     """A stereo pair to process: each camera's chapter files, in order from 0."""
 
-    night_id: uuid.UUID
+    night_id: uuid.UUID | None = Field(default=None, description="an existing night")
+    night: NightCreate | None = Field(
+        default=None, description="or a new night, created with the job (atomically)"
+    )
     files: list[FileDeclaration] = Field(min_length=2, max_length=2 * 999)
     params: dict[str, Any] | None = Field(
         default=None,
         description="parameter overrides, deep-merged into the defaults (ProcessParams)",
     )
+
+    @model_validator(mode="after")
+    def _one_night(self) -> JobCreate:
+        if (self.night_id is None) == (self.night is None):
+            raise ValueError("give either night_id (an existing night) or night (a new one)")
+        return self
 
     @model_validator(mode="after")
     def _chapters_complete(self) -> JobCreate:
@@ -159,7 +203,10 @@ class FileOut(BaseModel):
     chapter: int
     filename: str
     size: int
-    sha256: str
+    sha256: str | None
+    checksum: str | None = Field(
+        description="SHA-256 of the parts' SHA-256 digests (S3's checksum of checksums)"
+    )
     upload_state: str
     method: Literal["s3-multipart", "stream"]
     part_size: int = Field(description="bytes per part (multipart) or per PUT request (stream)")
@@ -174,6 +221,11 @@ class FileStatus(FileOut):
 
 class PartsRequest(Strict):
     part_numbers: list[int] = Field(min_length=1, max_length=100)
+    checksums_sha256: list[str] | None = Field(
+        default=None,
+        description="base64 SHA-256 of each part, in the order of part_numbers: signed "
+        "into the URLs (send it as x-amz-checksum-sha256; S3 refuses a different body)",
+    )
 
     @field_validator("part_numbers")
     @classmethod
@@ -181,6 +233,14 @@ class PartsRequest(Strict):
         if any(not 1 <= n <= 10_000 for n in numbers):
             raise ValueError("part numbers run from 1 to 10000")
         return numbers
+
+    @model_validator(mode="after")
+    def _one_checksum_per_part(self) -> PartsRequest:
+        if self.checksums_sha256 is not None and len(self.checksums_sha256) != len(
+            self.part_numbers
+        ):
+            raise ValueError("checksums_sha256 needs one checksum per part number")
+        return self
 
 
 class PartUrl(BaseModel):
@@ -208,6 +268,10 @@ class StageOut(BaseModel):
     progress: float
     started_at: dt.datetime | None
     finished_at: dt.datetime | None
+    heartbeat_at: dt.datetime | None = Field(description="last sign of life while running")
+    stalled_at: dt.datetime | None = Field(
+        description="when the stage was last re-queued because its worker fell silent"
+    )
     metrics: dict[str, Any]
     warnings: list[str]
     error: str | None
@@ -216,6 +280,9 @@ class StageOut(BaseModel):
 class JobOut(BaseModel):
     id: uuid.UUID
     night_id: uuid.UUID
+    site: str
+    date: dt.date
+    team: str
     status: str
     error: str | None
     progress: float = Field(description="fraction of the pipeline done, 0–1")
@@ -231,6 +298,17 @@ class JobOut(BaseModel):
     )
 
 
+class LinkRequest(Strict):
+    name: str | None = Field(
+        default=None, description="an artifact's name; none: the zip of all the results"
+    )
+
+
+class LinkOut(BaseModel):
+    url: str = Field(description="works without a token until it expires")
+    expires_s: int
+
+
 class ArtifactOut(BaseModel):
     name: str
     size: int
@@ -241,6 +319,39 @@ class ArtifactOut(BaseModel):
 
 
 # -- admin -------------------------------------------------------------------------------
+
+
+class TeamCreate(Strict):
+    name: Line = Field(min_length=1, max_length=100)
+    expires_in_days: float | None = Field(default=None, gt=0, le=3650)
+
+
+class TokenCreate(Strict):
+    label: Line = Field(default="", max_length=100)
+    expires_in_days: float | None = Field(default=None, gt=0, le=3650)
+
+
+class TokenOut(BaseModel):
+    id: uuid.UUID
+    label: str
+    created_at: dt.datetime
+    expires_at: dt.datetime | None
+    revoked_at: dt.datetime | None
+    state: str = Field(description="valid, valid until …, expired … or revoked …")
+
+
+class TeamOut(BaseModel):
+    id: uuid.UUID
+    name: str
+    created_at: dt.datetime
+    tokens: list[TokenOut]
+
+
+class IssuedToken(BaseModel):
+    team_id: uuid.UUID
+    team: str
+    token: TokenOut
+    secret: str = Field(description="the bearer token: shown this once, never stored")
 
 
 class RerunRequest(Strict):
@@ -264,4 +375,15 @@ class AdminJobOut(BaseModel):
     date: dt.date
     status: str
     error: str | None
+    created_at: dt.datetime
     updated_at: dt.datetime
+    stalled_at: dt.datetime | None = Field(
+        description="set while the job's work is stalled (a worker fell silent)"
+    )
+
+
+class ParamOut(BaseModel):
+    path: str = Field(description="dotted name, as in params overrides", examples=["sync.window_s"])
+    description: str
+    type: str
+    default: Any

@@ -2,22 +2,28 @@
 
 from __future__ import annotations
 
+from datetime import datetime
+
 from pipeline import graph
 from services.api.schemas import (
     AdminJobOut,
     ArtifactOut,
     FileOut,
     FileStatus,
+    IssuedToken,
     JobOut,
     NightOut,
     PartsSigned,
     PartUrl,
     StageOut,
+    TeamOut,
+    TokenOut,
 )
-from services.core.models import InputFile, Job, Night, Stage, Team
+from services.core.models import InputFile, Job, Night, Stage, Team, TeamToken
 from services.core.settings import Settings
 from services.core.storage import Storage
-from services.domain import downloads, workflow
+from services.domain import downloads, teams, workflow
+from services.domain.teams import Issued
 from services.domain.uploads import SignedParts, UploadProgress, part_count
 
 API_PREFIX = "/api/v1"
@@ -36,6 +42,7 @@ def file_out(job: Job, file: InputFile, storage: Storage) -> FileOut:
         filename=file.filename,
         size=file.size,
         sha256=file.sha256,
+        checksum=file.checksum,
         upload_state=file.upload_state,
         method=storage.upload_mode,
         part_size=file.part_size,
@@ -69,6 +76,9 @@ def job_out(job: Job, storage: Storage) -> JobOut:
     return JobOut(
         id=job.id,
         night_id=job.night_id,
+        site=job.night.site,
+        date=job.night.date,
+        team=job.night.team.name,
         status=job.status,
         error=job.error,
         progress=workflow.progress(job.stages),
@@ -98,7 +108,36 @@ def artifacts_out(settings: Settings, storage: Storage, job: Job) -> list[Artifa
     ]
 
 
-def admin_job_out(job: Job, night: Night, team: Team) -> AdminJobOut:
+def token_out(token: TeamToken) -> TokenOut:
+    return TokenOut(
+        id=token.id,
+        label=token.label,
+        created_at=token.created_at,
+        expires_at=token.expires_at,
+        revoked_at=token.revoked_at,
+        state=teams.token_state(token),
+    )
+
+
+def team_out(team: Team) -> TeamOut:
+    return TeamOut(
+        id=team.id,
+        name=team.name,
+        created_at=team.created_at,
+        tokens=[token_out(t) for t in team.tokens],
+    )
+
+
+def issued_out(issued: Issued) -> IssuedToken:
+    return IssuedToken(
+        team_id=issued.team.id,
+        team=issued.team.name,
+        token=token_out(issued.token),
+        secret=issued.secret,
+    )
+
+
+def admin_job_out(job: Job, night: Night, team: Team, stalled_at: datetime | None) -> AdminJobOut:
     return AdminJobOut(
         id=job.id,
         team=team.name,
@@ -107,5 +146,7 @@ def admin_job_out(job: Job, night: Night, team: Team) -> AdminJobOut:
         date=night.date,
         status=job.status,
         error=job.error,
+        created_at=job.created_at,
         updated_at=job.updated_at,
+        stalled_at=stalled_at,
     )

@@ -11,9 +11,10 @@ from sqlalchemy.orm import Session, sessionmaker
 SessionFactory = sessionmaker[Session]
 
 
-def make_engine(url: str) -> Engine:
-    """Engine with connection health checks (workers hold connections across long tasks)."""
-    return create_engine(url, pool_pre_ping=True, pool_size=5, max_overflow=10)
+def make_engine(url: str, *, pool_size: int = 5, pre_ping: bool = True) -> Engine:
+    """An engine; `pre_ping` checks each connection before use (workers hold connections
+    across long tasks, while the API, whose requests are short, skips that round trip)."""
+    return create_engine(url, pool_pre_ping=pre_ping, pool_size=pool_size, max_overflow=10)
 
 
 def make_session_factory(engine: Engine) -> SessionFactory:

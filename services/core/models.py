@@ -81,8 +81,27 @@ class Team(Base):
 
     id: Mapped[uuid.UUID] = mapped_column(primary_key=True, default=uuid.uuid4)
     name: Mapped[str] = mapped_column(String(100), unique=True)
-    token_hash: Mapped[str] = mapped_column(String(64), unique=True)
     created_at: Mapped[datetime] = _now()
+
+    tokens: Mapped[list[TeamToken]] = relationship(
+        back_populates="team", order_by="TeamToken.created_at"
+    )
+
+
+class TeamToken(Base):
+    """A team's bearer token (only its hash): several may be valid at once (rotation)."""
+
+    __tablename__ = "team_tokens"
+
+    id: Mapped[uuid.UUID] = mapped_column(primary_key=True, default=uuid.uuid4)
+    team_id: Mapped[uuid.UUID] = mapped_column(ForeignKey("teams.id"), index=True)
+    token_hash: Mapped[str] = mapped_column(String(64), unique=True)
+    label: Mapped[str] = mapped_column(String(100), default="")
+    created_at: Mapped[datetime] = _now()
+    expires_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+    revoked_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+
+    team: Mapped[Team] = relationship(back_populates="tokens")
 
 
 class Night(Base):
@@ -151,7 +170,14 @@ class InputFile(Base):
     chapter: Mapped[int] = mapped_column(Integer)
     filename: Mapped[str] = mapped_column(String(255))
     size: Mapped[int] = mapped_column(BigInteger)
-    sha256: Mapped[str] = mapped_column(String(64))
+    #: SHA-256 of the whole file, if the team declared it (the page does not: it hashes
+    #: per part while uploading, see `part_checksums`).
+    sha256: Mapped[str | None] = mapped_column(String(64))
+    #: Hex SHA-256 of each part (``"1"``, ``"2"``, …) received so far: signed into the
+    #: presigned S3 URL (S3 checks it), or computed by the API on the stream path.
+    part_checksums: Mapped[dict[str, Any]] = mapped_column(default=dict, server_default="{}")
+    #: SHA-256 of the concatenated part digests (`services.core.checksums`), once uploaded.
+    checksum: Mapped[str | None] = mapped_column(String(64))
     storage_key: Mapped[str] = mapped_column(String(512))
     upload_state: Mapped[str] = mapped_column(String(16), default=UploadState.PENDING)
     upload_id: Mapped[str | None] = mapped_column(String(1024))
@@ -184,6 +210,10 @@ class Stage(Base):
     queued_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
     started_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
     finished_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+    #: Last sign of life of the worker running the stage (`services.worker.heartbeat`).
+    heartbeat_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+    #: When the sweeper last re-queued the stage because its heartbeat had stopped.
+    stalled_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
     metrics: Mapped[dict[str, Any]] = mapped_column(default=dict)
     warnings: Mapped[list[str]] = mapped_column(default=list)
     error: Mapped[str | None] = mapped_column(Text)
@@ -208,3 +238,5 @@ class Artifact(Base):
 
 
 Index("ix_jobs_status_updated", Job.status, Job.updated_at)
+#: The sweeper's query: running stages by heartbeat.
+Index("ix_stages_status_heartbeat", Stage.status, Stage.heartbeat_at)

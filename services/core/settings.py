@@ -7,7 +7,6 @@ and the CLI read them from the environment through `get_settings`.
 
 from __future__ import annotations
 
-import secrets
 import tempfile
 from functools import lru_cache
 from pathlib import Path
@@ -48,9 +47,24 @@ class Settings(BaseSettings):
 
     # --- access
     admin_token: SecretStr | None = None
-    secret_key: SecretStr = Field(
-        default_factory=lambda: SecretStr(secrets.token_urlsafe(32)),
-        description="signs local download links; set it when several API processes run",
+    secret_key: SecretStr | None = Field(
+        default=None,
+        description="signs download links; required by the API, the same in all its processes",
+    )
+    api_workers: int = Field(default=2, ge=1, le=64, description="API processes of `serve`")
+    auth_cache_s: float = Field(
+        default=5.0, ge=0, description="an API process trusts a checked token this long"
+    )
+    auth_failures_limit: int = Field(
+        default=20, ge=1, description="failed authentications per client and window"
+    )
+    auth_failures_window_s: float = Field(default=60.0, gt=0)
+
+    # --- quotas per team (0: no limit)
+    quota_job_bytes: int = Field(default=0, ge=0, description="declared bytes of one job")
+    quota_night_bytes: int = Field(default=0, ge=0, description="declared bytes of one night")
+    quota_active_jobs: int = Field(
+        default=0, ge=0, description="jobs of one team queued or running at once"
     )
 
     # --- limits
@@ -69,6 +83,15 @@ class Settings(BaseSettings):
     retry_backoff_s: float = Field(default=5.0, ge=0)
     retry_backoff_max_s: float = Field(default=300.0, ge=0)
     progress_interval_s: float = Field(default=2.0, gt=0)
+    heartbeat_interval_s: float = Field(
+        default=20.0, gt=0, description="how often a running stage writes its heartbeat"
+    )
+    stall_limit_s: float = Field(
+        default=180.0, gt=0, description="a running stage silent this long is re-queued"
+    )
+    sweep_interval_s: float = Field(
+        default=30.0, gt=0, description="how often a worker looks for stalled stages"
+    )
     work_dir: Path = Path(tempfile.gettempdir()) / "firefly3d-work"
     cache_max_bytes: int = Field(
         default=50 * GiB, ge=0, description="input cache per worker machine"
@@ -86,10 +109,29 @@ class Settings(BaseSettings):
         return self
 
     @model_validator(mode="after")
+    def _check_heartbeat(self) -> Self:
+        if not 2 * self.heartbeat_interval_s < self.stall_limit_s:
+            raise ValueError(
+                f"need 2 × heartbeat_interval_s < stall_limit_s (got {self.heartbeat_interval_s}, "
+                f"{self.stall_limit_s}): a healthy stage must never look stalled"
+            )
+        return self
+
+    @model_validator(mode="after")
     def _check_s3(self) -> Self:
         if self.storage_backend == "s3" and not self.s3_bucket:
             raise ValueError("FIREFLY3D_S3_BUCKET is required with FIREFLY3D_STORAGE_BACKEND=s3")
         return self
+
+    def signing_key(self) -> str:
+        """The key of signed links; the API refuses to start without it (see `create_app`)."""
+        if self.secret_key is None:
+            raise ValueError(
+                "FIREFLY3D_SECRET_KEY is not set: it signs download links and must be the "
+                "same in every API process (e.g. python -c 'import secrets; "
+                "print(secrets.token_urlsafe(32))')"
+            )
+        return self.secret_key.get_secret_value()
 
     @property
     def cache_dir(self) -> Path:

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import uuid
+from datetime import datetime
 from typing import Any
 
 from sqlalchemy.orm import Session
 
 from services.core.models import Job, JobStatus, Night, Team
+from services.core.settings import Settings
 from services.core.storage import Storage
 from services.domain import workflow
 from services.domain.errors import NotFound
@@ -17,9 +19,10 @@ from services.domain.workflow import Send
 
 
 def list_jobs(
-    session: Session, status: JobStatus | None, limit: int
-) -> list[tuple[Job, Night, Team]]:
-    return jobs.listing(session, status, limit)
+    session: Session, settings: Settings, status: str | None, limit: int
+) -> list[tuple[Job, Night, Team, datetime | None]]:
+    """Jobs of every team (in a status, or "stalled"), with when their work stalled."""
+    return jobs.listing(session, status, limit, settings.stall_limit_s)
 
 
 def rerun_job(

@@ -1,27 +1,37 @@
-"""Downloads of a job's artifacts: presigned S3 URLs, or signed links streamed by the API."""
+"""Downloads of a job's artifacts: presigned S3 URLs, or signed links streamed by the API.
+
+Pages ask for a link when the user clicks (`POST /jobs/{id}/links`), so a page left
+open for hours never offers an expired one; "download all" is a zip streamed by the
+API (`services.domain.archive`) through a signed link.
+"""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import re
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import PurePosixPath
+
+from sqlalchemy.orm import Session
 
 from pipeline.artifacts import CALIBRATION_JSON, CAMERAS, REPORT_DIR, TRAJECTORIES_CSV, flashes_name
 from services.core.models import Artifact, Job
 from services.core.security import sign_payload, verify_payload
 from services.core.settings import Settings
 from services.core.storage import Disposition, Storage
+from services.domain.archive import ZipMember, zip_stream
 from services.domain.errors import Forbidden, NotFound
+from services.domain.repositories import jobs
 
 RESULTS = {TRAJECTORIES_CSV, CALIBRATION_JSON, *(flashes_name(c) for c in CAMERAS)}
 
 
 @dataclass(frozen=True)
 class Stream:
-    """An object to send through the API."""
+    """An object to send through the API (`size` None: not known in advance)."""
 
     chunks: Iterator[bytes]
-    size: int
+    size: int | None
     filename: str
     content_type: str
     disposition: Disposition
@@ -57,7 +67,7 @@ def download_url(
     filename = PurePosixPath(artifact.name).name
     payload = {"key": artifact.storage_key, "name": filename, "type": artifact.content_type}
     expires = settings.download_url_expires_s
-    signed = sign_payload(payload, settings.secret_key.get_secret_value(), expires)
+    signed = sign_payload(payload, settings.signing_key(), expires)
     return f"{signed_route}/{signed}"
 
 
@@ -84,9 +94,49 @@ def artifact_download(settings: Settings, storage: Storage, artifact: Artifact) 
     return _stream(storage, artifact.storage_key, filename, artifact.content_type)
 
 
-def signed_download(settings: Settings, storage: Storage, token: str) -> Stream:
-    """The object a link from `download_url` names, if the link is valid."""
-    payload = verify_payload(token, settings.secret_key.get_secret_value())
+def archive_name(job: Job) -> str:
+    """``firefly3d-<site>-<date>-<job>.zip``, the site reduced to safe characters."""
+    site = re.sub(r"[^A-Za-z0-9]+", "-", job.night.site).strip("-")[:40] or "site"
+    return f"firefly3d-{site}-{job.night.date}-{str(job.id)[:8]}.zip"
+
+
+def result_members(storage: Storage, job: Job) -> list[ZipMember]:
+    """The job's results (CSV, JSON, report) as zip members, read lazily from storage.
+
+    A caller that wants more in the archive (e.g. generated metadata) appends members.
+    """
+    return [(a.name, _lazy(storage, a.storage_key)) for a in job.artifacts if is_result(a.name)]
+
+
+def _lazy(storage: Storage, key: str) -> Iterable[bytes]:
+    """The object's chunks, opened only when iterated (when its member is written)."""
+    yield from storage.iter_bytes(key)
+
+
+def archive_url(settings: Settings, job: Job, signed_route: str) -> str:
+    """A link to the zip of the job's results that works without a token until it expires."""
+    payload = {"archive": str(job.id), "name": archive_name(job)}
+    signed = sign_payload(payload, settings.signing_key(), settings.download_url_expires_s)
+    return f"{signed_route}/{signed}"
+
+
+def signed_download(settings: Settings, storage: Storage, session: Session, token: str) -> Stream:
+    """The object, or the results archive, a signed link names, if the link is valid."""
+    payload = verify_payload(token, settings.signing_key())
+    if payload is not None and {"archive", "name"} <= payload.keys():
+        job = jobs.get(session, payload["archive"])
+        if job is None:
+            raise NotFound("this job no longer exists")
+        members = result_members(storage, job)
+        chunks = zip_stream(members, job.finished_at)
+        return Stream(chunks, None, payload["name"], "application/zip", "attachment")
     if payload is None or not {"key", "name", "type"} <= payload.keys():
         raise Forbidden("this download link is invalid or has expired")
     return _stream(storage, payload["key"], payload["name"], payload["type"])
+
+
+def link(settings: Settings, storage: Storage, job: Job, name: str | None, route: str) -> str:
+    """A fresh link to the artifact `name`, or (None) to the zip of the job's results."""
+    if name is None:
+        return archive_url(settings, job, route)
+    return download_url(settings, storage, find_artifact(job, name), route)

@@ -36,8 +36,13 @@ class IllegalTransition(Conflict):
 class Invalid(DomainError):
     """A value the caller sent is wrong; ``location`` names it (as in FastAPI's 422s)."""
 
-    def __init__(self, location: Sequence[str | int], message: str) -> None:
-        super().__init__(message)
+    def __init__(
+        self,
+        location: Sequence[str | int],
+        message: str,
+        headers: Mapping[str, str] | None = None,
+    ) -> None:
+        super().__init__(message, headers)
         self.location = list(location)
 
 
@@ -51,3 +56,7 @@ class Forbidden(DomainError):
 
 class Unavailable(DomainError):
     """A service the request needs (broker, storage) is not answering: retry later."""
+
+
+class TooManyRequests(DomainError):
+    """The caller must slow down (e.g. too many failed authentications)."""

@@ -10,12 +10,13 @@ from pydantic import ValidationError
 from sqlalchemy.orm import Session
 
 from pipeline.params import ProcessParams
-from services.core.models import InputFile, Job, JobStatus, Team, UploadState
+from services.core.models import InputFile, Job, JobStatus, Night, Team, UploadState
 from services.core.settings import Settings
-from services.core.storage import part_size_for
-from services.domain import access
-from services.domain.errors import Invalid
-from services.domain.workflow import job_key
+from services.core.storage import Storage, part_size_for
+from services.domain import access, workflow
+from services.domain.errors import Conflict, Invalid
+from services.domain.repositories import jobs, nights
+from services.domain.workflow import Send, job_key
 
 
 class DeclaredFile(Protocol):
@@ -25,7 +26,7 @@ class DeclaredFile(Protocol):
     chapter: int
     filename: str
     size: int
-    sha256: str
+    sha256: str | None
 
 
 def input_key(job_id: uuid.UUID, camera: int, chapter: int) -> str:
@@ -68,19 +69,50 @@ def _check_limits(files: Sequence[DeclaredFile], settings: Settings) -> None:
             )
 
 
+def _check_quotas(
+    session: Session, settings: Settings, night: Night, files: Sequence[DeclaredFile]
+) -> None:
+    """The team's quotas (settings ``quota_*``; 0 means none) for one more job."""
+    total = sum(f.size for f in files)
+    if settings.quota_job_bytes and total > settings.quota_job_bytes:
+        raise Invalid(
+            ["body", "files"],
+            f"the files add up to {total} bytes; a job may hold at most "
+            f"{settings.quota_job_bytes} bytes (FIREFLY3D_QUOTA_JOB_BYTES)",
+        )
+    if settings.quota_night_bytes:
+        already = nights.declared_bytes(session, night.id) if night.id is not None else 0
+        if already + total > settings.quota_night_bytes:
+            raise Invalid(
+                ["body", "files"],
+                f"this night already holds {already} bytes; with these {total} it would "
+                f"exceed its quota of {settings.quota_night_bytes} bytes "
+                "(FIREFLY3D_QUOTA_NIGHT_BYTES)",
+            )
+
+
 def create_job(
     session: Session,
     settings: Settings,
     team: Team,
-    night_id: uuid.UUID,
+    night: uuid.UUID | dict[str, Any],
     files: Sequence[DeclaredFile],
     params: dict[str, Any] | None,
 ) -> Job:
-    """A job in state ``created`` with its files declared (nothing uploaded yet); commits."""
-    night = access.visible_night(session, access.Principal(team), night_id)
+    """A job in state ``created`` with its files declared (nothing uploaded yet); commits.
+
+    `night` is an existing night's ID, or the fields of a new night, created in the
+    same transaction: a job that is refused (a bad parameter, a quota) leaves no
+    night behind, and the upload page needs one request before it sends any byte.
+    """
     _check_limits(files, settings)
     merged = merged_params(ProcessParams().model_dump(mode="json"), params)
-    job = Job(id=uuid.uuid4(), night=night, params=merged, status=JobStatus.CREATED, summary={})
+    if isinstance(night, dict):
+        target = Night(team_id=team.id, **night)
+    else:
+        target = access.visible_night(session, access.Principal(team), night)
+    _check_quotas(session, settings, target, files)
+    job = Job(id=uuid.uuid4(), night=target, params=merged, status=JobStatus.CREATED, summary={})
     job.files = [
         InputFile(
             camera=f.camera,
@@ -98,3 +130,16 @@ def create_job(
     session.add(job)
     session.commit()
     return job
+
+
+def submit_job(
+    session: Session, settings: Settings, storage: Storage, send: Send, job: Job
+) -> None:
+    """Queue an uploaded job, within the team's quota of active jobs (commits)."""
+    limit = settings.quota_active_jobs
+    if limit and jobs.active_count(session, job.night.team_id) >= limit:
+        raise Conflict(
+            f"your team already has {limit} jobs queued or running "
+            "(FIREFLY3D_QUOTA_ACTIVE_JOBS): submit this one when one of them has finished"
+        )
+    workflow.submit(session, storage, send, job.id)

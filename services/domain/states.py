@@ -9,7 +9,8 @@ Job:    created → uploading → queued → running → succeeded | failed | ca
         a finished job can be queued again (an admin re-run).
 Stage:  pending → queued → running → succeeded | failed | cancelled; a transient error
         puts a running stage back to queued, a refused broker a queued one to pending,
-        a re-run any of them to pending.
+        the sweeper a stalled running or queued one to queued (a new message), a
+        re-run any of them to pending.
 Upload: pending → uploading → uploaded; a bad checksum or a replacement → pending.
 """
 
@@ -37,7 +38,7 @@ JOB_MOVES: Mapping[str, frozenset[str]] = {
 }
 STAGE_MOVES: Mapping[str, frozenset[str]] = {
     S.PENDING: frozenset({S.QUEUED, S.CANCELLED}),
-    S.QUEUED: frozenset({S.PENDING, S.RUNNING, S.FAILED, S.CANCELLED}),
+    S.QUEUED: frozenset({S.QUEUED, S.PENDING, S.RUNNING, S.FAILED, S.CANCELLED}),
     S.RUNNING: frozenset({S.RUNNING, S.QUEUED, S.SUCCEEDED, S.FAILED, S.CANCELLED, S.PENDING}),
     S.SUCCEEDED: frozenset({S.PENDING}),
     S.FAILED: frozenset({S.PENDING}),
@@ -108,6 +109,7 @@ def restart_upload(file: InputFile) -> None:
     if file.upload_state != U.PENDING:
         _upload(file, U.PENDING)
     file.upload_id, file.uploaded_at = None, None
+    file.part_checksums, file.checksum = {}, None
 
 
 # -- jobs ----------------------------------------------------------------------------------
@@ -153,7 +155,7 @@ def queue_stage(stage: Stage) -> str:
     """Mark a pending stage queued with a fresh delivery token; returns the token."""
     _stage(stage, S.QUEUED)
     stage.queued_at, stage.queue_token = now(), uuid.uuid4().hex
-    stage.deliveries, stage.error = 0, None
+    stage.deliveries, stage.error, stage.heartbeat_at = 0, None, None
     return stage.queue_token
 
 
@@ -169,9 +171,29 @@ def start_stage(stage: Stage) -> None:
         stage.warnings = [*stage.warnings, f"attempt {stage.attempt}: the worker was lost"]
     _stage(stage, S.RUNNING)
     stage.started_at, stage.finished_at = now(), None
+    stage.heartbeat_at, stage.stalled_at = stage.started_at, None
     stage.attempt += 1
     stage.deliveries += 1
     stage.progress = 0.0
+
+
+def requeue_stalled(stage: Stage, silent_s: float) -> str:
+    """The worker running a stage, or holding its message, fell silent: queue a new
+    attempt; returns its token.
+
+    The delivery count is kept (unlike `queue_stage`), so a stage that kills every
+    worker it lands on still fails after ``max_attempts``; the new token makes the
+    lost delivery's message, should it ever come back, a harmless stale one.
+    """
+    _stage(stage, S.QUEUED)
+    stage.stalled_at = stage.queued_at = now()
+    stage.queue_token, stage.heartbeat_at = uuid.uuid4().hex, None
+    stage.warnings = [
+        *stage.warnings,
+        f"attempt {stage.attempt}: stalled (no heartbeat for {silent_s:.0f} s), "
+        f"re-queued at {stage.stalled_at:%Y-%m-%d %H:%M:%S} UTC",
+    ]
+    return stage.queue_token
 
 
 def succeed_stage(stage: Stage, metrics: dict[str, Any], warnings: list[str]) -> None:
@@ -197,7 +219,7 @@ def retry_stage(stage: Stage, note: str) -> None:
     """A transient error: the stage waits for its next delivery."""
     if stage.status != S.QUEUED:
         _stage(stage, S.QUEUED)
-    stage.error = note
+    stage.error, stage.heartbeat_at = note, None
 
 
 def reset_stage(stage: Stage) -> None:
@@ -207,3 +229,4 @@ def reset_stage(stage: Stage) -> None:
     stage.progress, stage.queue_token = 0.0, None
     stage.deliveries, stage.error, stage.metrics, stage.warnings = 0, None, {}, []
     stage.queued_at = stage.started_at = stage.finished_at = None
+    stage.heartbeat_at = stage.stalled_at = None

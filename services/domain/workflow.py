@@ -150,10 +150,11 @@ def advance(session: Session, storage: Storage, send: Send, job_id: uuid.UUID | 
         for stage in ready(job.stages)
     ]
     session.commit()
-    _send_or_revert(session, send, messages)
+    send_or_revert(session, send, messages)
 
 
-def _send_or_revert(session: Session, send: Send, messages: list[StageMessage]) -> None:
+def send_or_revert(session: Session, send: Send, messages: list[StageMessage]) -> None:
+    """Publish committed messages; if the broker refuses, their stages go back to pending."""
     if not messages:
         return
     try:

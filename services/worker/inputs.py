@@ -1,7 +1,8 @@
 """Fetching a job's files from storage into a task's working directory.
 
-Input videos are verified (size and SHA-256 against what the team declared) as they
-are downloaded, and kept in a per-machine cache (per stored object): the chunks of one
+Input videos are verified (size, the checksum of their part checksums recorded at
+upload, and the whole file's SHA-256 if the team declared one) as they are downloaded,
+and kept in a per-machine cache (per stored object): the chunks of one
 camera read the same chapter files, and a worker machine should download each once.
 """
 
@@ -14,7 +15,8 @@ import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
-from services.core.storage import Storage, sha256_file
+from services.core.checksums import file_checksums
+from services.core.storage import Storage
 from services.domain.workflow import job_key
 
 
@@ -31,7 +33,9 @@ class InputRef:
     filename: str
     storage_key: str
     size: int
-    sha256: str
+    sha256: str | None
+    part_size: int
+    checksum: str | None
 
     def label(self) -> str:
         return f"camera {self.camera} chapter {self.chapter} ({self.filename})"
@@ -44,13 +48,19 @@ def _check_size(path: Path, ref: InputRef) -> None:
 
 
 def verify(path: Path, ref: InputRef) -> None:
-    """Raise `InputError` unless the file at `path` has the declared size and checksum."""
+    """Raise `InputError` unless the file at `path` has the size and checksums recorded."""
     _check_size(path, ref)
-    actual = sha256_file(path)
-    if actual != ref.sha256:
+    whole, parts = file_checksums(path, ref.part_size)
+    advice = "the upload was corrupted or the wrong file was sent: replace it and re-run"
+    if ref.sha256 is not None and whole != ref.sha256:
         raise InputError(
-            f"{ref.label()}: SHA-256 of the uploaded file is {actual}, declared {ref.sha256}; "
-            "the upload was corrupted or the wrong file was sent: replace it and re-run"
+            f"{ref.label()}: SHA-256 of the uploaded file is {whole}, declared {ref.sha256}; "
+            + advice
+        )
+    if ref.checksum is not None and parts != ref.checksum:
+        raise InputError(
+            f"{ref.label()}: checksum of the part checksums is {parts}, recorded at upload "
+            f"{ref.checksum}; " + advice
         )
 
 
@@ -72,7 +82,8 @@ class InputCache:
         Keyed by object as well as checksum: a cache hit must not hide that the stored
         object itself is corrupt, which a worker without the entry would find.
         """
-        return self.root / hashlib.sha256(f"{ref.storage_key}\n{ref.sha256}".encode()).hexdigest()
+        name = f"{ref.storage_key}\n{ref.sha256}\n{ref.checksum}"
+        return self.root / hashlib.sha256(name.encode()).hexdigest()
 
     def fetch(self, storage: Storage, ref: InputRef, dest: Path) -> Path:
         """Place the verified file at `dest` (downloading it unless cached)."""

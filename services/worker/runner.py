@@ -41,6 +41,7 @@ from services.core.storage import Storage, TransientStorageError
 from services.domain import states, workflow
 from services.domain.repositories import jobs
 from services.domain.workflow import EnqueueError, Send, job_key, unit_of
+from services.worker.heartbeat import Heartbeat
 from services.worker.inputs import InputCache, InputRef, fetch_artifact
 
 log = logging.getLogger(__name__)
@@ -104,7 +105,13 @@ def execute(
         return
     try:
         rt.settings.work_dir.mkdir(parents=True, exist_ok=True)
-        with TemporaryDirectory(dir=rt.settings.work_dir, prefix=f"{claimed.unit.stage}-") as tmp:
+        beat = Heartbeat(
+            rt.sessions, rt.settings.heartbeat_interval_s, claimed.stage_id, claimed.token
+        )
+        with (
+            beat,
+            TemporaryDirectory(dir=rt.settings.work_dir, prefix=f"{claimed.unit.stage}-") as tmp,
+        ):
             workdir = Path(tmp)
             result = body(claimed, workdir, rt, ProgressReporter(rt, claimed))
             _check_current(rt, claimed)
@@ -118,11 +125,22 @@ def execute(
     except TRANSIENT_ERRORS as exc:
         raise _retry(task, rt, claimed, exc) from exc
     except SoftTimeLimitExceeded:
-        limit = rt.settings.task_soft_time_limit_s
-        fail_stage(rt, job_id, key, token, f"took longer than the {limit} s time limit")
+        fail_stage(rt, job_id, key, token, time_limit_message(rt.settings, claimed))
     except Exception as exc:
         log.exception("stage %s of job %s failed", key, job_id)
         fail_stage(rt, job_id, key, token, _message(exc))
+
+
+def time_limit_message(settings: Settings, claimed: Claim) -> str:
+    """Why a stage was stopped at the soft time limit, and which parameter to change."""
+    limit = settings.task_soft_time_limit_s
+    message = f"took longer than the {limit} s time limit (FIREFLY3D_TASK_SOFT_TIME_LIMIT_S)"
+    if graph.stage(claimed.unit.stage).scope == "chunk":
+        message += (
+            f": re-run with a smaller chunk_s (now {claimed.params.chunk_s:g} s) so that "
+            "each chunk fits"
+        )
+    return message
 
 
 def run_unit(claimed: Claim, workdir: Path, rt: Runtime, progress: Progress) -> StageResult:
@@ -219,7 +237,16 @@ def _claim_row(session: Session, job_id: str, key: str, token: str) -> Claim | s
     states.start_stage(stage)
     states.start_job(job)
     inputs = tuple(
-        InputRef(f.camera, f.chapter, f.filename, f.storage_key, f.size, f.sha256)
+        InputRef(
+            f.camera,
+            f.chapter,
+            f.filename,
+            f.storage_key,
+            f.size,
+            f.sha256,
+            f.part_size,
+            f.checksum,
+        )
         for f in job.files
     )
     return Claim(

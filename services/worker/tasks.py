@@ -11,14 +11,15 @@ from typing import Any
 
 from celery import Task
 from celery.exceptions import TimeLimitExceeded
-from celery.signals import worker_process_init
+from celery.signals import task_received, worker_process_init, worker_ready, worker_shutdown
 
 from pipeline.graph import STAGE_NAMES
-from services.core.db import make_engine, make_session_factory
+from services.core.db import SessionFactory, make_engine, make_session_factory
 from services.core.settings import get_settings
 from services.core.storage import make_storage
 from services.worker.celery_app import make_celery
 from services.worker.dispatch import sender, task_name
+from services.worker.heartbeat import Reservations, Sweeper
 from services.worker.inputs import InputCache
 from services.worker.runner import Runtime, execute, fail_stage
 
@@ -45,6 +46,46 @@ def _fresh_connections(**_: Any) -> None:
         engine = runtime().sessions.kw["bind"]
         engine.dispose(close=False)
     runtime.cache_clear()
+
+
+@lru_cache(maxsize=1)
+def main_sessions() -> SessionFactory:
+    """Database sessions of the worker's main process (sweeper, reservations)."""
+    return make_session_factory(make_engine(get_settings().database_url, pool_size=2))
+
+
+@lru_cache(maxsize=1)
+def sweeper() -> Sweeper:
+    """The main process's sweeper of stalled stages."""
+    settings = get_settings()
+    storage, send = make_storage(settings), sender(app, settings.queue)
+    return Sweeper(settings, main_sessions(), storage, send)
+
+
+@lru_cache(maxsize=1)
+def reservations() -> Reservations:
+    """Stages whose messages this worker holds but has not started."""
+    return Reservations(main_sessions(), get_settings().heartbeat_interval_s)
+
+
+@worker_ready.connect
+def _start_sweeper(**_: Any) -> None:
+    reservations().start()
+    sweeper().start()
+
+
+@task_received.connect
+def _reserved(request: Any, **_: Any) -> None:
+    # The message is this worker's from now on; if the worker dies before it starts
+    # the task, the stage's heartbeat stops and the sweeper queues it again.
+    if len(request.args) == 3:
+        reservations().add(request.args[2])
+
+
+@worker_shutdown.connect
+def _stop_sweeper(**_: Any) -> None:
+    if sweeper.cache_info().currsize:
+        sweeper().stop()
 
 
 class StageTask(Task):

@@ -40,7 +40,10 @@ from tests.services.helpers import NIGHT, TEST_ADMIN_TOKEN, TEST_PARAMS
 ROOT = Path(__file__).resolve().parents[2]
 POSTGRES = os.environ.get("FIREFLY3D_TEST_POSTGRES", "postgresql://postgres@127.0.0.1:5432")
 REDIS = os.environ.get("FIREFLY3D_TEST_REDIS", "redis://127.0.0.1:6379/0")
+RABBITMQ = os.environ.get("FIREFLY3D_TEST_RABBITMQ", "amqp://guest:guest@127.0.0.1:5672//")
 BUCKET = "firefly3d-test"
+#: Lifetime of download links in the tests: pages must work past it.
+LINK_LIFETIME_S = 3
 
 
 # moto's server logs every request at INFO: keep failure reports readable.
@@ -158,7 +161,13 @@ def make_settings(
         "unacked_restore_interval_s": 2,
         "retry_backoff_s": 0.5,
         "progress_interval_s": 0.2,
+        "heartbeat_interval_s": 1.0,
+        "stall_limit_s": 30.0,
+        "sweep_interval_s": 2.0,
+        # Tests of access control send many bad tokens from one address.
+        "auth_failures_limit": 10_000,
         "min_part_bytes": 5 << 20,
+        "download_url_expires_s": LINK_LIFETIME_S,
         **overrides,
     }
     return Settings.model_validate(values)

@@ -15,7 +15,7 @@ from fastapi.testclient import TestClient
 from pipeline.graph import Unit
 from services.core.db import SessionFactory, transaction
 from services.core.models import Job, Night, Stage, Team
-from services.core.security import hash_token, new_team_token
+from services.domain import teams
 from services.domain.workflow import new_stage
 
 TEST_ADMIN_TOKEN = "test-admin-token"
@@ -39,10 +39,8 @@ def auth(token: str) -> dict[str, str]:
 
 def make_team(sessions: SessionFactory, name: str | None = None) -> str:
     """A team in the database; returns its token."""
-    token = new_team_token()
-    with transaction(sessions) as session:
-        session.add(Team(name=name or f"team-{uuid.uuid4().hex[:8]}", token_hash=hash_token(token)))
-    return token
+    with sessions() as session:
+        return teams.create_team(session, name or f"team-{uuid.uuid4().hex[:8]}").secret
 
 
 def sha256(path: Path) -> str:
@@ -161,12 +159,13 @@ def download(client: TestClient, token: str, job_id: str, name: str) -> bytes:
 
 
 def queued_stage(
-    sessions: SessionFactory, deliveries: int = 0, status: str = "queued"
+    sessions: SessionFactory, deliveries: int = 0, status: str = "queued", name: str = "sync"
 ) -> tuple[str, str, str]:
-    """A running job whose ``sync`` stage is queued with a token; returns (job, key, token)."""
+    """A running job whose one stage (``sync``) is queued with a token; returns (job, key,
+    token)."""
     token = uuid.uuid4().hex
     with transaction(sessions) as session:
-        team = Team(name=f"r-{uuid.uuid4().hex[:8]}", token_hash=uuid.uuid4().hex)
+        team = Team(name=f"r-{uuid.uuid4().hex[:8]}")
         night = Night(team=team, site="s", date=dt.date(2026, 6, 1), separation_m=1.5, notes="")
         job = Job(
             id=uuid.uuid4(),
@@ -174,11 +173,11 @@ def queued_stage(
             status="running",
             params={"classifier": {"enabled": False}},
         )
-        stage = new_stage(Unit("sync"))
+        stage = new_stage(Unit(name))
         stage.status, stage.queue_token, stage.deliveries = status, token, deliveries
         job.stages = [stage]
         session.add(job)
-    return str(job.id), "sync", token
+    return str(job.id), name, token
 
 
 def stage_row(sessions: SessionFactory, job_id: str) -> Stage:

@@ -7,6 +7,7 @@ from collections.abc import AsyncIterator
 from typing import Annotated
 
 from fastapi import APIRouter, Path, Request, status
+from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import RedirectResponse, Response
 from starlette.requests import ClientDisconnect
 
@@ -26,9 +27,12 @@ from services.api.schemas import (
     FileStatus,
     JobCreate,
     JobOut,
+    LinkOut,
+    LinkRequest,
     PartsRequest,
     PartsSigned,
 )
+from services.api.status import Status
 from services.domain import access, downloads, jobs, uploads, workflow
 from services.domain.errors import Invalid
 
@@ -48,17 +52,55 @@ CHUNK_UPLOAD = {
 def create_job(
     body: JobCreate, team: TeamDep, session: SessionDep, settings: SettingsDep, storage: StorageDep
 ) -> JobOut:
-    """Declare a stereo pair's chapter files; the answer says how to upload each."""
-    job = jobs.create_job(session, settings, team, body.night_id, body.files, body.params)
+    """Declare a stereo pair's chapter files; the answer says how to upload each.
+
+    Name an existing ``night_id``, or give the ``night`` to create with the job (both
+    or neither are stored).
+    """
+    night = body.night_id if body.night is None else body.night.model_dump()
+    assert night is not None  # JobCreate requires one of them
+    job = jobs.create_job(session, settings, team, night, body.files, body.params)
     return views.job_out(job, storage)
 
 
-@router.get("/{job_id}")
-def get_job(
-    job_id: uuid.UUID, principal: PrincipalDep, session: SessionDep, storage: StorageDep
-) -> JobOut:
-    """Status, per-stage progress, errors and the run summary so far."""
-    return views.job_out(access.visible_job(session, principal, job_id), storage)
+@router.get(
+    "/{job_id}",
+    response_model=JobOut,
+    responses={304: {"description": "unchanged since the ETag in If-None-Match"}},
+)
+async def get_job(
+    request: Request,
+    job_id: uuid.UUID,
+    principal: PrincipalDep,
+    session: SessionDep,
+    storage: StorageDep,
+) -> Response:
+    """Status, per-stage progress, errors and the run summary so far.
+
+    Answers carry an ``ETag``; with ``If-None-Match`` an unchanged job answers 304.
+    """
+
+    def read() -> Status:
+        try:
+            return request.app.state.status_cache.read(
+                session,
+                principal,
+                job_id,
+                request.headers.get("if-none-match"),
+                lambda: (
+                    views.job_out(access.visible_job(session, principal, job_id), storage)
+                    .model_dump_json()
+                    .encode()
+                ),
+            )
+        finally:
+            session.close()
+
+    status_ = await run_in_threadpool(read)
+    headers = {"ETag": status_.etag, "Cache-Control": "no-cache"}
+    if status_.body is None:
+        return Response(status_code=status.HTTP_304_NOT_MODIFIED, headers=headers)
+    return Response(status_.body, media_type="application/json", headers=headers)
 
 
 @router.post("/{job_id}/submit")
@@ -66,12 +108,14 @@ def submit_job(
     job_id: uuid.UUID,
     principal: PrincipalDep,
     session: SessionDep,
+    settings: SettingsDep,
     storage: StorageDep,
     send: SendDep,
 ) -> JobOut:
     """Queue a job whose files are all uploaded (its inputs are verified by the probe stage)."""
-    access.visible_job(session, principal, job_id)
-    workflow.submit(session, storage, send, job_id)
+    jobs.submit_job(
+        session, settings, storage, send, access.visible_job(session, principal, job_id)
+    )
     return views.job_out(access.visible_job(session, principal, job_id), storage)
 
 
@@ -119,7 +163,12 @@ async def put_file(
     session: SessionDep,
     storage: StorageDep,
 ) -> FileStatus:
-    """Stream a file, or a ``Content-Range`` piece of it, to local storage."""
+    """Stream a file, or a ``Content-Range`` piece of it, to local storage.
+
+    Pieces start where the upload stands (``received_bytes``) and end at a part
+    boundary; ``x-amz-checksum-sha256`` (base64 SHA-256) checks a one-part piece. A body
+    shorter than announced is 422 with ``Upload-Offset``: the whole parts are kept.
+    """
     upload = await uploads.stream_upload(
         session,
         storage,
@@ -128,6 +177,7 @@ async def put_file(
         camera,
         chapter,
         request.headers.get("content-range"),
+        request.headers.get("x-amz-checksum-sha256"),
         _body(request),
     )
     return views.file_status(upload, storage)
@@ -147,7 +197,9 @@ def sign_parts(
     """Presigned URLs to PUT parts of a multipart upload straight to S3."""
     job = access.visible_job(session, principal, job_id)
     file = uploads.input_file(job, camera, chapter)
-    signed = uploads.sign_parts(session, settings, storage, job, file, body.part_numbers)
+    signed = uploads.sign_parts(
+        session, settings, storage, job, file, body.part_numbers, body.checksums_sha256
+    )
     return views.parts_signed(signed)
 
 
@@ -199,6 +251,24 @@ def list_artifacts(
     """Every file the job's stages wrote, with a short-lived download link each."""
     job = access.visible_job(session, principal, job_id)
     return views.artifacts_out(settings, storage, job)
+
+
+@router.post("/{job_id}/links")
+def make_link(
+    job_id: uuid.UUID,
+    body: LinkRequest,
+    principal: PrincipalDep,
+    session: SessionDep,
+    settings: SettingsDep,
+    storage: StorageDep,
+) -> LinkOut:
+    """A fresh download link for one artifact, or for a zip of all the job's results.
+
+    Pages ask when the user clicks, so a page left open never offers an expired link.
+    """
+    job = access.visible_job(session, principal, job_id)
+    url = downloads.link(settings, storage, job, body.name, views.DOWNLOADS)
+    return LinkOut(url=url, expires_s=settings.download_url_expires_s)
 
 
 @router.get(

@@ -1,65 +1,65 @@
-// The job page: poll the job every 2 s, show its stages, then its downloads and plots.
+// The job page's core: polls the job (ETag: an unchanged job costs a 304) and hands
+// each state to the registered sections. Another script adds a section with
+// jobPage.register({ update(job) {…}, finished(job, token) {…} }) (both optional):
+// this file shows the header, the status and the stages; job-summary.js the summary;
+// job-downloads.js the downloads and plots.
 "use strict";
 
 const FINISHED = ["succeeded", "failed", "cancelled"];
+const JOB_ID = document.getElementById("job-id").dataset.jobId;
 const $ = (id) => document.getElementById(id);
 
+const jobPage = {
+  sections: [],
+  register(section) { this.sections.push(section); },
+};
+
+// "sync", "merge camera 1", "track camera 1, frames 0–1800" (chunks have frame ranges).
 function stageLabel(stage) {
-  if (stage.name === "track") return `track camera ${stage.camera}, frames ${stage.frame_start}–${stage.frame_stop}`;
-  return stage.camera ? `${stage.name} camera ${stage.camera}` : stage.name;
+  const camera = stage.camera ? `${stage.name} camera ${stage.camera}` : stage.name;
+  return stage.frame_start === null ? camera : `${camera}, frames ${stage.frame_start}–${stage.frame_stop}`;
 }
 
-// The run summary as "section.key" rows; the parameters are on the job already.
-const NOT_SHOWN = ["parameters", "warnings"];
+const localTime = (iso) => new Date(iso).toLocaleString();
 
-function flatten(value, prefix = "") {
-  if (value === null || typeof value !== "object" || Array.isArray(value)) return [[prefix, value]];
-  return Object.entries(value)
-    .filter(([key]) => !(prefix === "" && NOT_SHOWN.includes(key)))
-    .flatMap(([key, inner]) => flatten(inner, prefix ? `${prefix}.${key}` : key));
+function stageMessage(stage) {
+  if (stage.status === "queued" && stage.stalled_at) {
+    return `stalled, re-queued at ${localTime(stage.stalled_at)}`;
+  }
+  return stage.error || stage.warnings.join("; ");
 }
 
-function showJob(job) {
-  const statusNode = $("job-status");
-  statusNode.textContent = job.status;
-  statusNode.className = `status-${job.status}`;
-  $("job-progress").value = job.progress;
-  $("job-percent").textContent = `${Math.round(job.progress * 100)} %`;
-  $("job-error").hidden = !job.error;
-  $("job-error").textContent = job.error || "";
-  $("cancel").hidden = FINISHED.includes(job.status);
-  $("stages").querySelector("tbody").replaceChildren(...job.stages.map((stage) => el("tr",
-    { "data-stage": stage.key, class: `status-${stage.status}` },
-    el("td", {}, stageLabel(stage)),
-    el("td", {}, stage.status),
-    el("td", {}, String(stage.attempt)),
-    el("td", {}, el("progress", { max: "1", value: String(stage.progress) })),
-    el("td", {}, stage.error || stage.warnings.join("; ")))));
-  const summary = flatten(job.summary).filter(([, value]) => value !== null);
-  $("summary").hidden = !summary.length;
-  $("summary-list").replaceChildren(...summary.flatMap(([key, value]) => [
-    el("dt", {}, key), el("dd", {}, typeof value === "number" ? String(+value.toFixed(4)) : JSON.stringify(value))]));
-}
-
-async function showDownloads(token) {
-  const artifacts = await api("GET", `/api/v1/jobs/${JOB_ID}/artifacts`, token);
-  const link = (a) => el("li", {}, el("a", { href: a.url, download: a.name.split("/").pop() }, a.name),
-    ` (${a.size.toLocaleString()} bytes)`);
-  const results = artifacts.filter((a) => a.category === "result");
-  $("results").replaceChildren(...results.filter((a) => !a.content_type.startsWith("image/")).map(link));
-  $("intermediates").replaceChildren(...artifacts.filter((a) => a.category !== "result").map(link));
-  $("plots").replaceChildren(...results.filter((a) => a.content_type.startsWith("image/"))
-    .map((a) => el("figure", {}, el("img", { src: a.url, alt: a.name }), el("figcaption", {}, a.name))));
-  $("downloads").hidden = false;
-}
+jobPage.register({
+  update(job) {
+    $("job-title").textContent = `${job.site}, ${job.date} — ${job.team}`;
+    document.title = `${job.site}, ${job.date} · firefly3d`;
+    const statusNode = $("job-status");
+    statusNode.textContent = job.status;
+    statusNode.className = `status-${job.status}`;
+    $("job-progress").value = job.progress;
+    $("job-percent").textContent = `${Math.round(job.progress * 100)} %`;
+    $("job-error").hidden = !job.error;
+    $("job-error").textContent = job.error || "";
+    $("cancel").hidden = FINISHED.includes(job.status);
+    $("stages").querySelector("tbody").replaceChildren(...job.stages.map((stage) => el("tr",
+      { "data-stage": stage.key, class: `status-${stage.status}` },
+      el("td", {}, stageLabel(stage)),
+      el("td", {}, stage.status),
+      el("td", {}, String(stage.attempt)),
+      el("td", {}, el("progress", { max: "1", value: String(stage.progress) })),
+      el("td", {}, stageMessage(stage)))));
+  },
+});
 
 async function poll(token) {
   for (;;) {
     try {
+      // The browser revalidates with If-None-Match (Cache-Control: no-cache): a 304
+      // comes back here as the cached 200.
       const job = await api("GET", `/api/v1/jobs/${JOB_ID}`, token);
-      showJob(job);
+      for (const section of jobPage.sections) section.update?.(job);
       if (FINISHED.includes(job.status)) {
-        if (job.status === "succeeded") await showDownloads(token);
+        for (const section of jobPage.sections) await section.finished?.(job, token);
         return;
       }
     } catch (error) {
@@ -84,5 +84,7 @@ $("token-save").addEventListener("click", () => {
 $("cancel").addEventListener("click", async () => {
   if (confirm("Cancel this job?")) await api("POST", `/api/v1/jobs/${JOB_ID}/cancel`, savedToken());
 });
-
-if (savedToken()) poll(savedToken()); else askToken();
+// Sections register in the scripts after this one; start once they all have.
+document.addEventListener("DOMContentLoaded", () => {
+  if (savedToken()) poll(savedToken()); else askToken();
+});

@@ -1,15 +1,13 @@
-// The upload form: hash each chapter, create the night and the job, upload every file
-// (presigned S3 multipart parts, or Content-Range pieces streamed to the API), submit,
-// then open the job's page. Progress survives a reload: the job and the files'
-// checksums are remembered in localStorage, and the server says what it already has.
+// The upload form: create the night and the job (one request: a wrong token or a bad
+// parameter is refused before any byte is read), upload every file (upload-parts.js:
+// hashed per part while sending, several parts in flight, speed and time left),
+// submit, then open the job's page. A reload or a lost connection resumes: the job is
+// remembered in localStorage, the server says which parts it already has, and only
+// the others are sent.
 "use strict";
 
 const RESUME_KEY = "firefly3d.upload";
-const PARALLEL_PARTS = 3;
-const SIGN_BATCH = 20;
-const RETRIES = 5;
 const files = { 1: [], 2: [] };
-
 const $ = (id) => document.getElementById(id);
 const fingerprint = (f) => `${f.name}|${f.size}|${f.lastModified}`;
 
@@ -34,16 +32,19 @@ $("token").value = savedToken();
 
 function status(text) { $("status").textContent = text; }
 
+// A row of the progress table; returns show(state, fraction, speed).
 function row(entry) {
   const bar = el("progress", { max: "1", value: "0" });
   const state = el("td", {}, "waiting");
+  const speed = el("td", { class: "speed" }, "");
   $("files").querySelector("tbody").append(
     el("tr", { "data-camera": entry.camera, "data-chapter": entry.chapter },
       el("td", {}, String(entry.camera)), el("td", {}, String(entry.chapter)),
-      el("td", {}, entry.file.name), state, el("td", {}, bar)));
-  return (text, fraction) => {
+      el("td", {}, entry.file.name), state, el("td", {}, bar), speed));
+  return (text, fraction, rate = "") => {
     state.textContent = text;
     if (fraction !== undefined) bar.value = fraction;
+    speed.textContent = rate;
   };
 }
 
@@ -56,101 +57,6 @@ function nightBody() {
   };
 }
 
-async function withRetries(action, what) {
-  for (let attempt = 1; ; attempt++) {
-    try {
-      return await action();
-    } catch (error) {
-      const permanent = error instanceof ApiError && error.status < 500 && error.status !== 409;
-      if (permanent || attempt >= RETRIES) throw error;
-      status(`${what}: ${error.message}; retrying (${attempt}/${RETRIES - 1})`);
-      await sleep(1000 * 2 ** attempt);
-    }
-  }
-}
-
-// PUT with upload progress (fetch cannot report it).
-function put(url, body, headers, onProgress) {
-  return new Promise((resolve, reject) => {
-    const xhr = new XMLHttpRequest();
-    xhr.open("PUT", url);
-    for (const [key, value] of Object.entries(headers)) xhr.setRequestHeader(key, value);
-    xhr.upload.onprogress = (e) => onProgress(e.loaded);
-    xhr.onload = () => (xhr.status < 300 ? resolve(xhr)
-      : reject(new ApiError(xhr.status, xhr.responseText || xhr.statusText)));
-    xhr.onerror = () => reject(new Error("network error"));
-    xhr.send(body);
-  });
-}
-
-async function uploadMultipart(token, info, file, show) {
-  const done = new Set(info.uploaded_parts);
-  const todo = [];
-  for (let n = 1; n <= info.part_count; n++) if (!done.has(n)) todo.push(n);
-  const sent = {};
-  const total = () => (done.size * info.part_size + Object.values(sent).reduce((a, b) => a + b, 0)) / file.size;
-  while (todo.length) {
-    const batch = todo.splice(0, SIGN_BATCH);
-    const signed = await withRetries(
-      () => api("POST", `${info.upload_url}/parts`, token, { part_numbers: batch }), "signing");
-    const queue = [...signed.parts];
-    const worker = async () => {
-      for (let part = queue.shift(); part; part = queue.shift()) {
-        const start = (part.number - 1) * info.part_size;
-        const blob = file.slice(start, Math.min(start + info.part_size, file.size));
-        await withRetries(() => put(part.url, blob, {}, (loaded) => {
-          sent[part.number] = loaded;
-          show("uploading", Math.min(total(), 1));
-        }), `part ${part.number}`);
-        delete sent[part.number];
-        done.add(part.number);
-        show("uploading", Math.min(total(), 1));
-      }
-    };
-    await Promise.all(Array.from({ length: PARALLEL_PARTS }, worker));
-  }
-  return withRetries(() => api("POST", `${info.upload_url}/complete`, token), "completing");
-}
-
-async function uploadStream(token, info, file, show) {
-  let offset = info.received_bytes;
-  while (offset < file.size) {
-    const end = Math.min(offset + info.part_size, file.size);
-    try {
-      const xhr = await put(info.upload_url, file.slice(offset, end), {
-        Authorization: `Bearer ${token}`,
-        "Content-Type": "application/octet-stream",
-        "Content-Range": `bytes ${offset}-${end - 1}/${file.size}`,
-      }, (loaded) => show("uploading", (offset + loaded) / file.size));
-      offset = JSON.parse(xhr.responseText).received_bytes;
-    } catch (error) {
-      if (error instanceof ApiError && error.status === 422) throw error;
-      status(`${file.name}: ${error.message}; resuming`);
-      await sleep(2000);
-      offset = (await withRetries(() => api("GET", info.upload_url, token), "status")).received_bytes;
-    }
-    show("uploading", offset / file.size);
-  }
-}
-
-async function uploadFile(token, entry, show) {
-  const info = await withRetries(() => api("GET", entry.url, token), "status");
-  if (info.upload_state === "uploaded") return show("uploaded", 1);
-  show("uploading", info.received_bytes / entry.file.size);
-  if (info.method === "s3-multipart") await uploadMultipart(token, info, entry.file, show);
-  else await uploadStream(token, info, entry.file, show);
-  show("uploaded", 1);
-}
-
-async function hashAll(entries, saved) {
-  const known = new Map((saved?.files || []).map((f) => [f.fingerprint, f.sha256]));
-  for (const entry of entries) {
-    entry.sha256 = known.get(fingerprint(entry.file))
-      || await sha256File(entry.file, (p) => entry.show("checksum", p));
-    entry.show("checksum done", 0);
-  }
-}
-
 function paramOverrides() {
   const text = $("params").value.trim();
   try {
@@ -160,14 +66,13 @@ function paramOverrides() {
   }
 }
 
-async function createJob(token, entries) {
-  const params = paramOverrides();
-  const night = await api("POST", "/api/v1/nights", token, nightBody());
+// One request creates the night and the job, or neither.
+function createJob(token, entries) {
   return api("POST", "/api/v1/jobs", token, {
-    night_id: night.id,
-    params,
+    night: nightBody(),
+    params: paramOverrides(),
     files: entries.map((e) => ({
-      camera: e.camera, chapter: e.chapter, filename: e.file.name, size: e.file.size, sha256: e.sha256,
+      camera: e.camera, chapter: e.chapter, filename: e.file.name, size: e.file.size,
     })),
   });
 }
@@ -196,20 +101,18 @@ async function start(event) {
   for (const entry of entries) entry.show = row(entry);
   try {
     const saved = JSON.parse(localStorage.getItem(RESUME_KEY) || "null");
-    status("computing checksums…");
-    await hashAll(entries, saved);
     let job = await resumableJob(token, entries, saved);
     status(job ? "resuming the previous upload…" : "creating the job…");
     job = job || await createJob(token, entries);
     localStorage.setItem(RESUME_KEY, JSON.stringify({
       jobId: job.id,
       night: nightBody(),
-      files: entries.map((e) => ({ fingerprint: fingerprint(e.file), sha256: e.sha256 })),
+      files: entries.map((e) => ({ fingerprint: fingerprint(e.file) })),
     }));
     for (const entry of entries) {
       entry.url = job.files.find((f) => f.camera === entry.camera && f.chapter === entry.chapter).upload_url;
       status(`uploading ${entry.file.name}…`);
-      await uploadFile(token, entry, entry.show);
+      await uploadFile(token, entry.url, entry.file, entry.show, status);
     }
     status("submitting…");
     await api("POST", `/api/v1/jobs/${job.id}/submit`, token);

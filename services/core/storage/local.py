@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import fcntl
+import os
 import shutil
 from collections.abc import Iterator
 from pathlib import Path
@@ -79,11 +80,12 @@ class LocalStorage:
         if not self.root.is_dir():
             raise StorageError(f"storage directory {self.root} is missing")
 
-    def received_bytes(self, key: str) -> int:
-        partial = self.partial_path(key)
-        return partial.stat().st_size if partial.is_file() else 0
-
     def open_append(self, key: str, offset: int) -> BinaryIO:
+        """The partial upload, locked, positioned to append at `offset`.
+
+        Bytes beyond `offset` (the unfinished part of an interrupted request) are
+        dropped: the caller knows which parts arrived whole.
+        """
         partial = self.partial_path(key)
         partial.parent.mkdir(parents=True, exist_ok=True)
         handle = partial.open("ab")
@@ -92,11 +94,11 @@ class LocalStorage:
         except BlockingIOError:
             handle.close()
             raise StorageError(f"another upload of {key!r} is in progress") from None
-        if handle.tell() != offset:
+        size = os.fstat(handle.fileno()).st_size
+        if size < offset:
             handle.close()
-            raise StorageError(
-                f"upload of {key!r} is at byte {self.received_bytes(key)}, not {offset}"
-            )
+            raise StorageError(f"upload of {key!r} is at byte {size}, not {offset}")
+        handle.truncate(offset)
         return handle
 
     def publish_partial(self, key: str) -> None:

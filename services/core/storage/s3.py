@@ -132,30 +132,38 @@ class S3Storage:
         with self._errors(""):
             self.client.head_bucket(Bucket=self.bucket)
 
-    def create_multipart(self, key: str, content_type: str) -> str:
+    def create_multipart(self, key: str, content_type: str, checksums: bool) -> str:
+        """Start a multipart upload; with `checksums`, S3 requires and checks a SHA-256
+        per part and keeps the checksum of the part checksums for the object."""
+        extra = {"ChecksumAlgorithm": "SHA256"} if checksums else {}
         with self._errors(key):
             response = self.client.create_multipart_upload(
-                Bucket=self.bucket, Key=key, ContentType=content_type
+                Bucket=self.bucket, Key=key, ContentType=content_type, **extra
             )
         return str(response["UploadId"])
 
     def presign_parts(
-        self, key: str, upload_id: str, numbers: list[int], expires_s: int
+        self, key: str, upload_id: str, parts: dict[int, str | None], expires_s: int
     ) -> dict[int, str]:
-        def sign(number: int) -> str:
-            params = {
+        """PUT URLs for part numbers; a part's base64 SHA-256, if given, is signed into
+        its URL (sent as ``x-amz-checksum-sha256``): S3 refuses a body that differs."""
+
+        def sign(number: int, checksum: str | None) -> str:
+            params: dict[str, object] = {
                 "Bucket": self.bucket,
                 "Key": key,
                 "UploadId": upload_id,
                 "PartNumber": number,
             }
+            if checksum is not None:
+                params["ChecksumSHA256"] = checksum
             return str(
                 self.public_client.generate_presigned_url(
                     "upload_part", Params=params, ExpiresIn=expires_s
                 )
             )
 
-        return {number: sign(number) for number in numbers}
+        return {number: sign(number, checksum) for number, checksum in parts.items()}
 
     def list_parts(self, key: str, upload_id: str) -> list[UploadedPart]:
         with self._errors(key):
@@ -168,15 +176,27 @@ class S3Storage:
                 for p in page.get("Parts", [])
             ]
 
-    def complete_multipart(self, key: str, upload_id: str, parts: list[UploadedPart]) -> None:
+    def complete_multipart(
+        self,
+        key: str,
+        upload_id: str,
+        parts: list[UploadedPart],
+        checksums: dict[int, str] | None = None,
+    ) -> None:
+        """Assemble the parts; `checksums` (base64 SHA-256 by part) are checked by S3."""
+
+        def entry(part: UploadedPart) -> dict[str, object]:
+            fields: dict[str, object] = {"PartNumber": part.number, "ETag": part.etag}
+            if checksums is not None:
+                fields["ChecksumSHA256"] = checksums[part.number]
+            return fields
+
         with self._errors(key):
             self.client.complete_multipart_upload(
                 Bucket=self.bucket,
                 Key=key,
                 UploadId=upload_id,
-                MultipartUpload={
-                    "Parts": [{"PartNumber": p.number, "ETag": p.etag} for p in parts]
-                },
+                MultipartUpload={"Parts": [entry(p) for p in parts]},
             )
 
     def abort_multipart(self, key: str, upload_id: str) -> None:

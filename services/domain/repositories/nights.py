@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import uuid
 
-from sqlalchemy import select
+from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from services.core.models import Job, Night
+from services.core.models import InputFile, Job, Night
 
 
 def get(session: Session, night_id: uuid.UUID) -> Night | None:
@@ -24,3 +24,11 @@ def job_ids(session: Session, night_id: uuid.UUID, status: str) -> list[uuid.UUI
     """IDs of the night's jobs in `status`."""
     query = select(Job.id).where(Job.night_id == night_id, Job.status == status)
     return list(session.scalars(query))
+
+
+def declared_bytes(session: Session, night_id: uuid.UUID) -> int:
+    """Bytes declared by every job of the night (for the night quota)."""
+    query = (
+        select(func.coalesce(func.sum(InputFile.size), 0)).join(Job).where(Job.night_id == night_id)
+    )
+    return int(session.scalar(query) or 0)

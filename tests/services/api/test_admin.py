@@ -10,7 +10,8 @@ from services.core.db import transaction
 from services.core.models import Job
 from services.domain.states import finish_job
 from tests.services.conftest import Service
-from tests.services.helpers import TEST_ADMIN_TOKEN, auth, create_night, make_team
+from tests.services.domain.test_sweeper import silent_for
+from tests.services.helpers import TEST_ADMIN_TOKEN, auth, create_night, make_team, queued_stage
 
 ADMIN = auth(TEST_ADMIN_TOKEN)
 FILES = [
@@ -84,3 +85,14 @@ def test_rerun_failed_of_a_night(api_service: Service, failed_job: dict) -> None
         client.post(f"/api/v1/admin/nights/{uuid.uuid4()}/rerun-failed", headers=ADMIN).status_code
         == 404
     )
+
+
+def test_list_stalled_jobs(api_service: Service) -> None:
+    job_id, _, _ = queued_stage(api_service.sessions, status="running")
+    silent_for(api_service.sessions, job_id, 2 * api_service.settings.stall_limit_s)
+    response = api_service.client.get("/api/v1/admin/jobs?status=stalled", headers=ADMIN)
+    assert response.status_code == 200, response.text
+    listed = {j["id"]: j for j in response.json()}
+    assert listed[job_id]["status"] == "running" and listed[job_id]["stalled_at"] is not None
+    running = api_service.client.get("/api/v1/admin/jobs?status=running", headers=ADMIN).json()
+    assert all(j["stalled_at"] is None for j in running if j["id"] != job_id)

@@ -2,20 +2,26 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
+import os
+import re
 import shutil
+import time
+import zipfile
 from collections.abc import Iterator
 from pathlib import Path
 
-import httpx
 import pytest
-from playwright.sync_api import Browser, Page, sync_playwright
+from playwright.sync_api import Browser, Page, Route, sync_playwright
 
 from pipeline.artifacts import SUMMARY_JSON, TRAJECTORIES_CSV
-from tests.services.conftest import LiveServer, Service
-from tests.services.helpers import NIGHT, TEST_PARAMS, auth, create_job, make_team
+from services.domain.access import authenticate
+from tests.services.conftest import LINK_LIFETIME_S, LiveServer, Service
+from tests.services.helpers import NIGHT, TEST_PARAMS, auth, make_team
 
 pytestmark = pytest.mark.slow
+MiB = 1 << 20
 CHROMIUM_FLAGS = [
     "--no-sandbox",
     "--disable-gpu",
@@ -66,34 +72,58 @@ def upload_through_the_form(
     page.click("text=Advanced")
     page.fill("#params", json.dumps(TEST_PARAMS))
     page.click("#start")
-    page.wait_for_url("**/jobs/*", timeout=120_000)
+    try:
+        page.wait_for_url("**/jobs/*", timeout=120_000)
+    except Exception:
+        raise AssertionError(f"the upload did not finish: {page.inner_text('#status')}") from None
     return seen
 
 
-def check_job_page(page: Page, server: LiveServer, reference: Path) -> None:
+def team_name(service: Service, token: str) -> str:
+    with service.sessions() as session:
+        principal = authenticate(session, service.settings, token)
+        assert principal.team is not None
+        return principal.team.name
+
+
+def check_job_page(page: Page, team: str, reference: Path) -> None:
     page.wait_for_selector("#job-status.status-succeeded", timeout=240_000)
     rows = page.locator("#stages tbody tr")
     assert rows.count() == 16  # 8 stages + 4 tracking chunks per camera
     assert set(page.locator("#stages tbody tr td:nth-child(2)").all_inner_texts()) == {"succeeded"}
-    shown = dict(
-        zip(
-            page.locator("#summary-list dt").all_inner_texts(),
-            page.locator("#summary-list dd").all_inner_texts(),
-            strict=True,
+    assert page.inner_text("#job-title") == f"{NIGHT['site']}, {NIGHT['date']} — {team}"
+
+    def shown(key: str) -> tuple[str, str]:
+        return (
+            page.inner_text(f'#summary-list dt[data-key="{key}"]'),
+            page.inner_text(f'#summary-list dd[data-key="{key}"]'),
         )
-    )
+
     summary = json.loads((reference / SUMMARY_JSON).read_text())
-    assert shown["counts.trajectories"] == str(summary["counts"]["trajectories"])
+    trajectories = f"{summary['counts']['trajectories']:,}"
+    assert shown("counts.trajectories") == ("Trajectories", trajectories)
     flooded = summary["tracking"]["cam1"]["flooded_frames"]
-    assert shown["tracking.cam1.flooded_frames"] == str(flooded)  # what tracking dropped
-    link = page.locator("#results a", has_text=TRAJECTORIES_CSV)
-    with page.expect_download() as download:
-        link.click()
-    assert Path(download.value.path()).read_bytes() == (reference / TRAJECTORIES_CSV).read_bytes()
+    assert shown("tracking.cam1.flooded_frames") == (
+        "Frames too bright to track, camera 1",
+        str(flooded),
+    )
+    label, value = shown("delay_confidence")
+    assert label == "Delay confidence" and value.endswith(" %")
     plots = page.locator("#plots img")
     assert plots.count() >= 3
     for i in range(plots.count()):
         assert plots.nth(i).evaluate("img => img.complete && img.naturalWidth > 0")
+
+    page.wait_for_timeout(1000 * (LINK_LIFETIME_S + 1))  # links listed at load have expired
+    link = page.locator("#results a", has_text=TRAJECTORIES_CSV)
+    with page.expect_download() as download:
+        link.click()  # signed on click: still works
+    assert Path(download.value.path()).read_bytes() == (reference / TRAJECTORIES_CSV).read_bytes()
+    with page.expect_download() as archive:
+        page.click("#download-all")
+    with zipfile.ZipFile(archive.value.path()) as results:
+        assert results.read(TRAJECTORIES_CSV) == (reference / TRAJECTORIES_CSV).read_bytes()
+        assert SUMMARY_JSON in results.namelist()
 
 
 @pytest.mark.parametrize("backend", ["s3", "local"])
@@ -112,71 +142,100 @@ def test_upload_form_to_results(
     with LiveServer(service) as server:
         seen = upload_through_the_form(page, server, token, recording)
         states = {state for _, state, _ in seen}
-        assert {"checksum", "uploading", "uploaded"} <= states
+        assert {"uploading", "uploaded"} <= states
         partial = [
             value
             for name, state, value in seen
             if name == recording[1][0].name and state == "uploading"
         ]
         assert any(0 < v < 1 for v in partial)  # the bar moved during the upload
-        check_job_page(page, server, reference)
+        check_job_page(page, team_name(service, token), reference)
         page.screenshot(path=str(tmp_path / f"job-{backend}.png"), full_page=True)
     page.close()
 
 
+def fill_night(page: Page, token: str) -> None:
+    page.fill("#token", token)
+    page.fill("#site", NIGHT["site"])
+    page.fill("#date", NIGHT["date"])
+    page.fill("#separation", str(NIGHT["separation_m"]))
+
+
+def test_wrong_token_is_refused_before_any_hashing(
+    api_service: Service, browser: Browser, big_files: dict
+) -> None:
+    page = browser.new_page()
+    started_workers: list[str] = []
+    page.on("worker", lambda worker: started_workers.append(worker.url))
+    with LiveServer(api_service) as server:
+        page.goto(f"{server.url}/")
+        fill_night(page, "ff3d_not-a-token")
+        page.set_input_files("#cam1-files", [str(big_files[1])])
+        page.set_input_files("#cam2-files", [str(big_files[2])])
+        page.click("#start")
+        page.wait_for_selector("#status:has-text('error: invalid, revoked or expired token')")
+    page.close()
+    assert started_workers == []  # the hashing worker never started
+
+
+@pytest.fixture(scope="module")
+def big_files(tmp_path_factory: pytest.TempPathFactory) -> dict[int, Path]:
+    """Random stand-ins for videos: camera 1 in 3 parts of 5 MiB, camera 2 in one."""
+    out = tmp_path_factory.mktemp("big")
+    files = {1: out / "GS010001.mp4", 2: out / "GS010002.mp4"}
+    files[1].write_bytes(os.urandom(12 * MiB + 321))
+    files[2].write_bytes(os.urandom(MiB))
+    return files
+
+
 def test_upload_resumes_after_a_reload(
-    s3_api_service: Service, browser: Browser, recording: dict
+    s3_api_service: Service, browser: Browser, big_files: dict
 ) -> None:
     """A page reloaded mid-upload continues the same job and skips the stored parts."""
     client = s3_api_service.client
     token = make_team(s3_api_service.sessions)
-    job = create_job(client, token, recording)  # what the first visit created…
-    first = job["files"][0]
-    signed = client.post(
-        f"{first['upload_url']}/parts", json={"part_numbers": [1]}, headers=auth(token)
-    )
-    data = recording[1][0].read_bytes()
-    assert (
-        httpx.put(signed.json()["parts"][0]["url"], content=data[: first["part_size"]]).status_code
-        == 200
-    )
-
-    requests: list[str] = []
+    puts: list[str] = []
     page = browser.new_page()
-    page.on("request", lambda r: requests.append(f"{r.method} {r.url}"))
+    page.on("request", lambda r: puts.append(r.url) if r.method == "PUT" else None)
+
+    def only_part_one(route: Route) -> None:  # the connection drops for the other parts
+        if "partNumber=1&" in route.request.url or route.request.url.endswith("partNumber=1"):
+            route.continue_()
+        else:
+            route.abort("connectionreset")
+
     with LiveServer(s3_api_service) as server:
         page.goto(f"{server.url}/")
-        page.set_input_files("#cam1-files", [str(p) for p in recording[1]])
-        page.set_input_files("#cam2-files", [str(p) for p in recording[2]])
-        modified = page.evaluate(
-            "[1, 2].flatMap(c => [...document.querySelector(`#cam${c}-files`).files]"
-            ".map(f => `${f.name}|${f.size}|${f.lastModified}`))"
-        )
-        saved = {  # …and remembered before the connection dropped
-            "jobId": job["id"],
-            "night": NIGHT,
-            "files": [
-                {"fingerprint": m, "sha256": f["sha256"]}
-                for m, f in zip(modified, job["files"], strict=True)
-            ],
-        }
-        page.evaluate(f"localStorage.setItem('firefly3d.upload', {json.dumps(json.dumps(saved))})")
-        page.evaluate(f"localStorage.setItem('firefly3d.token', '{token}')")
+        page.route("**/input/cam1/00.mp4?*", only_part_one)
+        fill_night(page, token)
+        page.set_input_files("#cam1-files", [str(big_files[1])])
+        page.set_input_files("#cam2-files", [str(big_files[2])])
+        page.click("#start")
+        page.wait_for_selector("#status:has-text('retrying')")
+        job_id = json.loads(page.evaluate("localStorage.getItem('firefly3d.upload')"))["jobId"]
+        url = f"/api/v1/jobs/{job_id}/files/1/0"
+        deadline = time.monotonic() + 30
+        while client.get(url, headers=auth(token)).json()["uploaded_parts"] != [1]:
+            assert time.monotonic() < deadline, "part 1 was not stored"
+            time.sleep(0.1)
+        page.unroute("**/input/cam1/00.mp4?*")
+        before = len(puts)
         page.reload()
         assert "was interrupted" in page.inner_text("#status")
         assert page.input_value("#site") == NIGHT["site"]  # the night is filled in again
-        page.set_input_files("#cam1-files", [str(p) for p in recording[1]])
-        page.set_input_files("#cam2-files", [str(p) for p in recording[2]])
+        page.set_input_files("#cam1-files", [str(big_files[1])])
+        page.set_input_files("#cam2-files", [str(big_files[2])])
         page.click("#start")
-        page.wait_for_url(f"**/jobs/{job['id']}", timeout=120_000)
+        page.wait_for_url(f"**/jobs/{job_id}", timeout=120_000)
     page.close()
 
-    assert not [
-        r for r in requests if r.startswith("POST") and r.endswith(("/api/v1/jobs", "/nights"))
-    ]
-    first_file_parts = [r for r in requests if r.startswith("PUT") and "/input/cam1/00.mp4?" in r]
-    assert len(first_file_parts) == first["part_count"] - 1
-    assert not any("partNumber=1&" in r or r.endswith("partNumber=1") for r in first_file_parts)
-    status = client.get(f"/api/v1/jobs/{job['id']}", headers=auth(token)).json()
+    resumed = [u for u in puts[before:] if "/input/cam1/00.mp4?" in u]
+    assert sorted(re.search(r"partNumber=(\d+)", u)[1] for u in resumed) == ["2", "3"]  # type: ignore[index]
+    status = client.get(f"/api/v1/jobs/{job_id}", headers=auth(token)).json()
     assert status["status"] == "queued"
     assert {f["upload_state"] for f in status["files"]} == {"uploaded"}
+    digests = [
+        hashlib.sha256(big_files[1].read_bytes()[i : i + 5 * MiB]).digest()
+        for i in range(0, big_files[1].stat().st_size, 5 * MiB)
+    ]
+    assert status["files"][0]["checksum"] == hashlib.sha256(b"".join(digests)).hexdigest()

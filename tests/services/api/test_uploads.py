@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import base64
 import hashlib
 import os
 from pathlib import Path
@@ -12,7 +13,14 @@ import pytest
 
 from services.core.storage import MAX_PARTS, part_size_for
 from tests.services.conftest import Service
-from tests.services.helpers import auth, create_job, make_team, upload_stream
+from tests.services.helpers import (
+    auth,
+    create_job,
+    create_night,
+    declare,
+    make_team,
+    upload_stream,
+)
 
 MiB = 1 << 20
 
@@ -71,15 +79,65 @@ def test_stream_upload_in_pieces_resumes(api_service: Service, videos: dict) -> 
     assert again.status_code == 409 and "already uploaded" in again.json()["detail"]
 
 
+def part_digests(data: bytes, size: int) -> list[bytes]:
+    return [hashlib.sha256(data[i : i + size]).digest() for i in range(0, len(data), size)]
+
+
 def test_whole_file_put_starts_over(api_service: Service, videos: dict) -> None:
     client = api_service.client
     token, job = new_job(api_service, videos)
     url, data = job["files"][0]["upload_url"], videos[1][0].read_bytes()
-    headers = {**auth(token), "Content-Range": f"bytes 0-99/{len(data)}"}
-    assert client.put(url, content=b"\0" * 100, headers=headers).status_code == 200
+    headers = {**auth(token), "Content-Range": f"bytes 0-{5 * MiB - 1}/{len(data)}"}
+    assert client.put(url, content=b"\0" * 5 * MiB, headers=headers).status_code == 200
     done = client.put(url, content=data, headers=auth(token))
     assert done.status_code == 200, done.text
     assert done.json()["upload_state"] == "uploaded"
+    composite = hashlib.sha256(b"".join(part_digests(data, 5 * MiB))).hexdigest()
+    assert done.json()["checksum"] == composite  # S3's checksum of the part checksums
+
+
+def test_short_body_is_an_error_that_keeps_whole_parts(api_service: Service, videos: dict) -> None:
+    client = api_service.client
+    token, job = new_job(api_service, videos)
+    url, data = job["files"][0]["upload_url"], videos[1][0].read_bytes()
+    short = client.put(url, content=data[: 7 * MiB], headers=auth(token))
+    assert short.status_code == 422
+    assert short.headers["upload-offset"] == str(5 * MiB)
+    assert "body ended after 7340032 of 12583035 bytes" in short.json()["detail"][0]["msg"]
+    status = client.get(url, headers=auth(token)).json()
+    assert (status["received_bytes"], status["uploaded_parts"]) == (5 * MiB, [1])
+    rest = upload_stream(client, token, url, videos[1][0], 5 * MiB, offset=5 * MiB)
+    assert rest["upload_state"] == "uploaded"
+    key = f"jobs/{job['id']}/input/cam1/00.mp4"
+    assert b"".join(api_service.storage.iter_bytes(key)) == data
+
+
+def test_stream_part_checksum_is_checked(api_service: Service, videos: dict) -> None:
+    client = api_service.client
+    token = make_team(api_service.sessions)
+    declared = [{**f, "sha256": None} for f in declare(videos)]  # as the page declares
+    night = create_night(client, token)
+    job = client.post(
+        "/api/v1/jobs", json={"night_id": night["id"], "files": declared}, headers=auth(token)
+    ).json()
+    url, data = job["files"][0]["upload_url"], videos[1][0].read_bytes()
+    digests = part_digests(data, 5 * MiB)
+    piece = {**auth(token), "Content-Range": f"bytes 0-{5 * MiB - 1}/{len(data)}"}
+    wrong = {**piece, "x-amz-checksum-sha256": base64.b64encode(digests[1]).decode()}
+    refused = client.put(url, content=data[: 5 * MiB], headers=wrong)
+    assert refused.status_code == 422
+    assert refused.json()["detail"][0]["msg"].startswith("part 1 does not match its SHA-256")
+    assert client.get(url, headers=auth(token)).json()["received_bytes"] == 0
+    for number, start in enumerate(range(0, len(data), 5 * MiB)):
+        end = min(start + 5 * MiB, len(data))
+        headers = {
+            **auth(token),
+            "Content-Range": f"bytes {start}-{end - 1}/{len(data)}",
+            "x-amz-checksum-sha256": base64.b64encode(digests[number]).decode(),
+        }
+        done = client.put(url, content=data[start:end], headers=headers)
+        assert done.status_code == 200, done.text
+    assert done.json()["checksum"] == hashlib.sha256(b"".join(digests)).hexdigest()
 
 
 def test_stream_upload_refuses_wrong_checksum_and_extra_bytes(
@@ -156,6 +214,41 @@ def test_multipart_upload_resumes_and_completes(s3_api_service: Service, videos:
     assert b"".join(s3_api_service.storage.iter_bytes(key)) == data
     beyond = client.post(f"{url}/parts", json={"part_numbers": [1]}, headers=auth(token))
     assert beyond.status_code == 409
+
+
+def test_multipart_parts_carry_signed_checksums(s3_api_service: Service, videos: dict) -> None:
+    client = s3_api_service.client
+    token = make_team(s3_api_service.sessions)
+    night = create_night(client, token)
+    declared = [{**f, "sha256": None} for f in declare(videos)]
+    job = client.post(
+        "/api/v1/jobs", json={"night_id": night["id"], "files": declared}, headers=auth(token)
+    ).json()
+    unchecked = job["files"][1]  # neither a declared SHA-256 nor part checksums
+    put_parts(client, token, unchecked["upload_url"], videos[2][0].read_bytes(), [1])
+    refused = client.post(f"{unchecked['upload_url']}/complete", headers=auth(token))
+    assert refused.status_code == 422 and "no checksum" in refused.json()["detail"][0]["msg"]
+
+    url, data = job["files"][0]["upload_url"], videos[1][0].read_bytes()
+    digests = part_digests(data, 5 * MiB)
+    checksums = [base64.b64encode(d).decode() for d in digests]
+    body = {"part_numbers": [1, 2, 3], "checksums_sha256": checksums}
+    signed = client.post(f"{url}/parts", json=body, headers=auth(token))
+    assert signed.status_code == 200, signed.text
+    for part, checksum in zip(signed.json()["parts"], checksums, strict=True):
+        assert "x-amz-checksum-sha256" in part["url"]  # signed: S3 refuses another body
+        start = (part["number"] - 1) * 5 * MiB
+        response = httpx.put(
+            part["url"],
+            content=data[start : start + 5 * MiB],
+            headers={"x-amz-checksum-sha256": checksum},
+        )
+        assert response.status_code == 200
+    unsigned = client.post(f"{url}/parts", json={"part_numbers": [1]}, headers=auth(token))
+    assert unsigned.status_code == 422  # an upload with checksums needs them on every part
+    done = client.post(f"{url}/complete", headers=auth(token))
+    assert done.status_code == 200, done.text
+    assert done.json()["checksum"] == hashlib.sha256(b"".join(digests)).hexdigest()
 
 
 def test_multipart_part_of_wrong_size_is_refused(s3_api_service: Service, videos: dict) -> None:

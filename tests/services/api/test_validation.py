@@ -90,7 +90,18 @@ def test_bad_files(
 
 @pytest.mark.parametrize(
     "name",
-    ["../../etc/passwd", "videos/GS010001.mp4", "..\\GS010001.mp4", "..", ".", "GS01\x00.mp4", ""],
+    [
+        "../../etc/passwd",
+        "videos/GS010001.mp4",
+        "..\\GS010001.mp4",
+        "..",
+        ".",
+        "GS01\x00.mp4",
+        "",
+        "evil\u202egpj.mp4",  # right-to-left override: reads as "evilmp4.jpg"
+        "GS01\u2066.mp4",
+        "GS01\u200b.mp4",  # zero-width space: not printable
+    ],
 )
 def test_path_traversal_file_names(
     api_service: Service, team: str, night_id: str, name: str

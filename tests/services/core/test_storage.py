@@ -88,13 +88,14 @@ def test_local_partial_upload_is_exclusive_and_ordered(tmp_path: Path) -> None:
         handle.write(b"abc")
         with pytest.raises(StorageError, match="in progress"):
             storage.open_append(key, 3)
-    with pytest.raises(StorageError, match="at byte 3, not 0"):
-        storage.open_append(key, 0)
-    with storage.open_append(key, 3) as handle:
-        handle.write(b"def")
-    assert storage.received_bytes(key) == 6 and storage.size(key) is None
+    with pytest.raises(StorageError, match="at byte 3, not 5"):
+        storage.open_append(key, 5)
+    with storage.open_append(key, 2) as handle:  # an unfinished part is dropped
+        handle.write(b"cdef")
+    assert storage.partial_path(key).read_bytes() == b"abcdef" and storage.size(key) is None
     storage.publish_partial(key)
-    assert b"".join(storage.iter_bytes(key)) == b"abcdef" and storage.received_bytes(key) == 0
+    assert b"".join(storage.iter_bytes(key)) == b"abcdef"
+    assert not storage.partial_path(key).exists()
     assert storage.list_keys("jobs/") == [key]
 
 

@@ -4,20 +4,21 @@ from __future__ import annotations
 
 import math
 import uuid
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from pipeline.jsonio import json_safe
+from services.core.checksums import file_checksums
 from services.core.db import SessionFactory
 from services.core.models import Job
 from services.core.settings import Settings
-from services.core.storage import sha256_file
 from services.core.storage.local import LocalStorage
 from services.domain.workflow import StageMessage
 from services.worker.inputs import InputCache, InputError, InputRef
-from services.worker.runner import Runtime, backoff_s, claim
+from services.worker.runner import Runtime, backoff_s, claim, time_limit_message
 from tests.services.helpers import queued_stage, stage_row
 
 
@@ -97,20 +98,25 @@ def test_input_cache_verifies_and_reuses(tmp_path: Path) -> None:
     source = tmp_path / "GS010001.mp4"
     source.write_bytes(b"video" * 1000)
     storage.upload_file(source, "jobs/j/input/cam1/00.mp4", "video/mp4")
-    ref = InputRef(1, 0, source.name, "jobs/j/input/cam1/00.mp4", 5000, sha256_file(source))
+    whole, parts = file_checksums(source, 2048)
+    ref = InputRef(1, 0, source.name, "jobs/j/input/cam1/00.mp4", 5000, whole, 2048, parts)
     cache = InputCache(tmp_path / "cache", max_bytes=6000)
     first = cache.fetch(storage, ref, tmp_path / "a" / source.name)
     storage.delete(ref.storage_key)  # a second fetch must come from the cache
     second = cache.fetch(storage, ref, tmp_path / "b" / source.name)
     assert first.read_bytes() == second.read_bytes() == source.read_bytes()
 
-    wrong = InputRef(1, 1, "GS020001.mp4", "jobs/j/input/cam1/01.mp4", 5000, "0" * 64)
+    wrong = InputRef(1, 1, "GS020001.mp4", "jobs/j/input/cam1/01.mp4", 5000, "0" * 64, 2048, None)
     storage.upload_file(source, wrong.storage_key, "video/mp4")
     with pytest.raises(
         InputError, match=r"camera 1 chapter 1 \(GS020001.mp4\): SHA-256 of the uploaded"
     ):
         cache.fetch(storage, wrong, tmp_path / "c" / "x.mp4")
-    short = InputRef(1, 1, "GS020001.mp4", wrong.storage_key, 4000, ref.sha256)
+    # Without a declared SHA-256 (the upload page declares none) the parts' checksum counts.
+    undeclared = replace(wrong, sha256=None, checksum="1" * 64)
+    with pytest.raises(InputError, match="checksum of the part checksums is " + parts):
+        cache.fetch(storage, undeclared, tmp_path / "c" / "y.mp4")
+    short = replace(wrong, size=4000, sha256=ref.sha256)
     with pytest.raises(InputError, match="stored file has 5000 bytes, declared 4000"):
         cache.fetch(storage, short, tmp_path / "d" / "x.mp4")
     entries = [p.name for p in (tmp_path / "cache").iterdir()]
@@ -119,7 +125,21 @@ def test_input_cache_verifies_and_reuses(tmp_path: Path) -> None:
     other = tmp_path / "other.mp4"
     other.write_bytes(b"other" * 1000)
     storage.upload_file(other, "jobs/j/input/cam2/00.mp4", "video/mp4")
-    newer = InputRef(2, 0, "o.mp4", "jobs/j/input/cam2/00.mp4", 5000, sha256_file(other))
+    newer = InputRef(2, 0, "o.mp4", "jobs/j/input/cam2/00.mp4", 5000, None, 2048, None)
     cache.fetch(storage, newer, tmp_path / "e" / "o.mp4")  # over 6000 bytes: oldest evicted
     assert [p.name for p in (tmp_path / "cache").iterdir()] == [cache.path_for(newer).name]
     assert first.read_bytes() == source.read_bytes()  # a hard link outlives eviction
+
+
+def test_time_limit_message_names_what_to_change(
+    runtime: tuple[Runtime, list], sessions: SessionFactory
+) -> None:
+    rt, _ = runtime
+    chunk = claim(rt, *queued_stage(sessions, name="track"))
+    whole = claim(rt, *queued_stage(sessions, name="sync"))
+    assert chunk is not None and whole is not None
+    assert time_limit_message(rt.settings, chunk).endswith(
+        "(FIREFLY3D_TASK_SOFT_TIME_LIMIT_S): re-run with a smaller chunk_s (now 60 s) so that "
+        "each chunk fits"
+    )
+    assert "chunk_s" not in time_limit_message(rt.settings, whole)

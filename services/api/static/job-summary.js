@@ -1,0 +1,83 @@
+// The job page's summary: the run summary (pipeline/summary.py) with plain names and
+// units, in the order of FIELDS. FIELDS maps a key path to [label, unit, scale]; "{c}"
+// stands for a camera number, "{s}" for a stage. Keys not listed are still shown, last,
+// under their key path.
+"use strict";
+
+const FIELDS = [
+  ["counts.trajectories", "Trajectories"],
+  ["counts.streaks", "Streaks"],
+  ["counts.points", "Triangulated flashes"],
+  ["counts.flashes_cam{c}", "Flashes accepted, camera {c}"],
+  ["counts.candidates_cam{c}", "Candidates tracked, camera {c}"],
+  ["counts.calibration_pairs", "Calibration pairs (one flash per camera)"],
+  ["counts.calibration_inliers", "Calibration pairs that fit the pose"],
+  ["delay_frames", "Camera 2 delay", "frames"],
+  ["delay_confidence", "Delay confidence", "%", 100],
+  ["translation", "Direction of camera 2 from camera 1 (unit vector)"],
+  ["rotation", "Rotation of camera 2 (matrix)"],
+  ["residuals.median_deg", "Calibration residual, median", "°"],
+  ["residuals.mean_deg", "Calibration residual, mean", "°"],
+  ["residuals.p90_deg", "Calibration residual, 90th percentile", "°"],
+  ["residuals.median_gap", "Ray gap, median", "× separation"],
+  ["residuals.mean_gap", "Ray gap, mean", "× separation"],
+  ["residuals.p90_gap", "Ray gap, 90th percentile", "× separation"],
+  ["tracking.cam{c}.frames", "Frames tracked, camera {c}"],
+  ["tracking.cam{c}.candidates", "Candidates, camera {c}"],
+  ["tracking.cam{c}.warmup_frames", "Frames decoded to warm up, camera {c}"],
+  ["tracking.cam{c}.flooded_frames", "Frames too bright to track, camera {c}"],
+  ["tracking.cam{c}.dropped_by_area", "Blobs too small or large, camera {c}"],
+  ["tracking.cam{c}.dropped_over_cap", "Blobs over the per-frame cap, camera {c}"],
+  ["tracking.cam{c}.seconds", "Tracking time, camera {c}", "s"],
+  ["tracking.cam{c}.fps", "Tracking speed, camera {c}", "frames/s"],
+  ["timings_s.{s}", "Time, {s}", "s"],
+];
+const NOT_SHOWN = ["parameters", "warnings"];
+
+const FIELD_PATTERNS = FIELDS.map(([path, label, unit = "", scale = 1]) => ({
+  regex: new RegExp(`^${path.replace(/\./g, "\\.").replace("{c}", "(\\d+)").replace("{s}", "(.+)")}$`),
+  label, unit, scale,
+}));
+
+function describe(key) {
+  for (const [order, field] of FIELD_PATTERNS.entries()) {
+    const match = key.match(field.regex);
+    if (match) {
+      const label = field.label.replace("{c}", match[1]).replace("{s}", (match[1] || "").replaceAll("_", " "));
+      return { label, unit: field.unit, scale: field.scale, order };
+    }
+  }
+  return { label: key, unit: "", scale: 1, order: FIELD_PATTERNS.length };
+}
+
+function flatten(value, prefix = "") {
+  if (value === null || typeof value !== "object" || Array.isArray(value)) return [[prefix, value]];
+  return Object.entries(value)
+    .filter(([key]) => !(prefix === "" && NOT_SHOWN.includes(key)))
+    .flatMap(([key, inner]) => flatten(inner, prefix ? `${prefix}.${key}` : key));
+}
+
+const rounded = (value) => (typeof value === "number" ? +value.toPrecision(4) : value);
+
+function formatValue(value, unit, scale) {
+  if (Array.isArray(value)) {
+    return value.map((v) => (Array.isArray(v) ? `[${v.map(rounded).join(", ")}]` : rounded(v))).join(", ");
+  }
+  if (typeof value !== "number") return JSON.stringify(value);
+  const scaled = value * scale;
+  const text = Number.isInteger(scaled) ? scaled.toLocaleString() : String(+scaled.toPrecision(4));
+  return unit ? `${text} ${unit}` : text;
+}
+
+jobPage.register({
+  update(job) {
+    const rows = flatten(job.summary).filter(([, value]) => value !== null)
+      .map(([key, value]) => ({ key, value, ...describe(key) }))
+      .sort((a, b) => a.order - b.order);
+    $("summary").hidden = !rows.length;
+    $("summary-list").replaceChildren(...rows.flatMap((row) => [
+      el("dt", { "data-key": row.key, title: row.key }, row.label),
+      el("dd", { "data-key": row.key }, formatValue(row.value, row.unit, row.scale))]));
+    $("summary-warnings").replaceChildren(...(job.summary.warnings || []).map((w) => el("li", {}, w)));
+  },
+});
