@@ -335,7 +335,7 @@ def synchrony(
     if len(ids) < params.min_trajectories:
         return result
     rng = np.random.default_rng(params.seed)
-    shift = max(int(round(params.surrogate_shift_s * fps)), 1)
+    shift = max(round(params.surrogate_shift_s * fps), 1)
     surrogates = np.empty((params.n_surrogates, hi + 2))
     for s in range(params.n_surrogates):
         offsets = rng.integers(-shift, shift + 1, len(ids))

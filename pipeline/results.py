@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from pipeline.clock import NightClock
 from pipeline.detections import read_csv, write_csv
@@ -172,7 +173,7 @@ def write_flash_patterns(
 ) -> None:
     """Write ``flash_patterns.csv``: `rows` (`pipeline.patterns.per_trajectory`) and the
     clock's ``timestamp_utc`` / ``minutes_after_sunset`` of each trajectory's first flash."""
-    columns = {
+    columns: dict[str, ArrayLike] = {
         **rows,
         "timestamp_utc": clock.timestamps(rows["first_frame"], fps),
         "minutes_after_sunset": clock.minutes_after_sunset(rows["first_frame"], fps),
