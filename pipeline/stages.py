@@ -367,7 +367,7 @@ def report(ctx: StageContext) -> StageResult:
     """Plots and ``summary.json`` of a finished run."""
     from pipeline.report import write_plots  # matplotlib is only needed here
 
-    plots = write_plots(ctx.workdir)
+    plots = write_plots(ctx.workdir, ctx.params.patterns)
     records = {u: read_record(ctx.workdir, u) for u in earlier_units(ctx.unit, ctx.units)}
     write_json(ctx.workdir / SUMMARY_JSON, summarise(records, ctx.params))
     return StageResult(metrics={"n_plots": len(plots)})
