@@ -16,10 +16,41 @@ import datetime as dt
 from typing import Literal
 from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 #: How a camera's clock writes the container's ``creation_time``.
 CameraClock = Literal["local", "utc"]
+
+
+def check_time_zone(name: str) -> str:
+    """`name` if it is an IANA time zone known here.
+
+    Raises
+    ------
+    ValueError
+        Naming the value, for an unknown zone or a malformed name.
+    """
+    try:
+        ZoneInfo(name)
+    except (ZoneInfoNotFoundError, ValueError, OSError, TypeError):
+        raise ValueError(
+            f"unknown time zone {name!r}: give an IANA name such as America/New_York"
+        ) from None
+    return name
+
+
+def check_start_time(start: dt.datetime | None, time_zone: str | None) -> None:
+    """Refuse a start time that cannot be placed in UTC (no offset, no time zone).
+
+    Raises
+    ------
+    ValueError
+    """
+    if start is not None and start.tzinfo is None and time_zone is None:
+        raise ValueError(
+            f"start time {start.isoformat()} has no UTC offset: give one "
+            "(e.g. 2026-06-12T21:30:00-04:00) or the site's time zone"
+        )
 
 
 class NightInfo(BaseModel):
@@ -78,15 +109,12 @@ class NightInfo(BaseModel):
     @field_validator("time_zone")
     @classmethod
     def _known_zone(cls, value: str | None) -> str | None:
-        if value is None:
-            return None
-        try:
-            ZoneInfo(value)
-        except (ZoneInfoNotFoundError, ValueError):
-            raise ValueError(
-                f"unknown time zone {value!r}: give an IANA name such as America/New_York"
-            ) from None
-        return value
+        return None if value is None else check_time_zone(value)
+
+    @model_validator(mode="after")
+    def _placeable_start(self) -> NightInfo:
+        check_start_time(self.start_time, self.time_zone)
+        return self
 
     @property
     def zone(self) -> ZoneInfo | None:
