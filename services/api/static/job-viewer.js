@@ -127,7 +127,7 @@ class Viewer {
     for (let k = 0; k < positions.length; k += 3) {
       radius = Math.max(radius, this.centre.distanceTo(new Vector3(positions[k], positions[k + 1], positions[k + 2])));
     }
-    this.camera.position.copy(this.centre).add(new Vector3(radius * 1.2, -radius * 1.6, radius * 1.0));
+    this.camera.position.copy(this.centre).add(new Vector3(radius * 0.8, -radius * 1.1, radius * 0.7));
     this.camera.lookAt(this.centre);
   }
 

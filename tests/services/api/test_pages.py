@@ -45,7 +45,8 @@ LIT_PIXELS = """() => {
   const data = ctx.getImageData(0, 0, copy.width, copy.height).data;
   let lit = 0;
   for (let i = 0; i < data.length; i += 4) {
-    if (Math.abs(data[i] - 11) + Math.abs(data[i + 1] - 16) + Math.abs(data[i + 2] - 32) > 60) lit++;
+    const off = Math.abs(data[i] - 11) + Math.abs(data[i + 1] - 16) + Math.abs(data[i + 2] - 32);
+    if (off > 60) lit++;
   }
   return lit;
 }"""
@@ -149,11 +150,15 @@ def check_job_page(page: Page, team: str, reference: Path) -> None:
     check_viewer(page, reference)
 
 
-def set_range(page: Page, selector: str, value: float) -> None:
-    page.eval_on_selector(
-        selector,
-        "(input, value) => { input.value = value; input.dispatchEvent(new Event('input')); }",
-        str(value),
+def set_range(page: Page, selector: str, value: float) -> float:
+    """Move a slider as a person would (it snaps to its step); returns where it stopped."""
+    return float(
+        page.eval_on_selector(
+            selector,
+            "(input, value) => { input.value = value; input.dispatchEvent(new Event('input'));"
+            " return input.value; }",
+            str(value),
+        )
     )
 
 
@@ -171,7 +176,7 @@ def check_viewer(page: Page, reference: Path) -> None:
     set_range(page, "#viewer-width", 2)
     shown = []
     for end in (np.quantile(times, 0.3), np.quantile(times, 0.8)):
-        set_range(page, "#viewer-time", end)
+        end = set_range(page, "#viewer-time", end)
         expected = int(np.count_nonzero((times >= end - 2 - 1e-6) & (times <= end + 1e-6)))
         assert int(canvas.get_attribute("data-visible") or -1) == expected
         shown.append((expected, page.evaluate(LIT_PIXELS)))
