@@ -25,12 +25,14 @@ linked 3D flashes of ``trajectories.csv``:
   compare ρ with its distribution over surrogate nights in which every trajectory is
   shifted by a random time (uniform in ±``surrogate_shift_s``, circularly): each
   trajectory keeps its own rhythm, the activity through the night barely changes, only
-  the phase relations *between* fireflies are destroyed. The excess e(τ) = ρ(τ) − mean
-  over surrogates is the part of the periodicity that needs fireflies to flash together;
-  its highest peak in ``period_range_s`` gives the synchrony period, its height the
-  strength (0 for independent flashers, up to ~1), and its z-score against the
-  surrogates' spread the significance. A night is synchronous when both pass the
-  parameters' thresholds.
+  the phase relations *between* fireflies are destroyed. The excess e(τ) = (C(τ) − mean
+  of the surrogates' C(τ)) / C(0), with C the autocovariance of N, is the part of the
+  periodicity that needs fireflies to flash together (each trajectory's own terms cancel
+  exactly); its fundamental peak in ``period_range_s`` gives the synchrony period, its
+  height the strength (0 for independent flashers, up to ~1), and its z-score against
+  the surrogates' spread the significance. A night is synchronous when both pass the
+  parameters' thresholds. A periodic series peaks at every multiple of its period, so
+  the fundamental is the shortest-lag peak at least half as high as the highest.
 
 All computations are vectorised over points and flashes (group statistics by sorting);
 loops run only over the few surrogates.
@@ -272,16 +274,30 @@ def _align(ids: IntArray, present: IntArray, values: FloatArray) -> FloatArray:
     return out
 
 
-def autocorrelation(series: FloatArray, max_lag: int) -> FloatArray:
-    """Circular autocorrelation of a series (mean removed, ρ(0) = 1) at lags 0..max_lag."""
+def autocovariance(series: FloatArray, max_lag: int) -> FloatArray:
+    """Circular autocovariance of a series (mean removed) at lags 0..max_lag."""
     centred = series - series.mean()
     spectrum = np.fft.rfft(centred)
-    acf = np.fft.irfft(spectrum * np.conj(spectrum), n=len(series))[: max_lag + 1]
+    return np.fft.irfft(spectrum * np.conj(spectrum), n=len(series))[: max_lag + 1]
+
+
+def autocorrelation(series: FloatArray, max_lag: int) -> FloatArray:
+    """Circular autocorrelation of a series (mean removed, ρ(0) = 1) at lags 0..max_lag."""
+    acf = autocovariance(series, max_lag)
     return acf / acf[0] if acf[0] > 0 else np.zeros(max_lag + 1)
 
 
+#: A peak at least this fraction of the highest one, at a shorter lag, is the fundamental
+#: period (the highest can be a multiple of it: a periodic series peaks at every multiple).
+HARMONIC_FRACTION = 0.5
+
+
 def _peak(curve: FloatArray, lo: int, hi: int) -> int | None:
-    """Lag of the highest local maximum of `curve` within [lo, hi], or None."""
+    """Lag of the fundamental peak of `curve` within [lo, hi], or None.
+
+    Among the local maxima, the shortest lag whose height is at least
+    `HARMONIC_FRACTION` of the highest (and positive).
+    """
     lags = np.arange(max(lo, 1), min(hi, len(curve) - 2) + 1)
     if len(lags) == 0:
         return None
@@ -289,7 +305,10 @@ def _peak(curve: FloatArray, lo: int, hi: int) -> int | None:
     if not local.any():
         return None
     candidates = lags[local]
-    return int(candidates[np.argmax(curve[candidates])])
+    best = curve[candidates].max()
+    if best <= 0:
+        return int(candidates[np.argmax(curve[candidates])])
+    return int(candidates[curve[candidates] >= HARMONIC_FRACTION * best][0])
 
 
 def count_series(frame: IntArray, trajectory_id: IntArray, n_frames: int) -> FloatArray:
@@ -326,7 +345,10 @@ def synchrony(
     }
     if len(frame) == 0 or n_frames < 2 * hi + 2:
         return result
-    rho = autocorrelation(count_series(frame, tid, n_frames), hi + 1)
+    acov = autocovariance(count_series(frame, tid, n_frames), hi + 1)
+    if acov[0] <= 0:
+        return result
+    rho = acov / acov[0]
     lag = _peak(rho, lo, hi)
     if lag is not None:
         result["count_period_s"] = lag / fps
@@ -340,8 +362,11 @@ def synchrony(
     for s in range(params.n_surrogates):
         offsets = rng.integers(-shift, shift + 1, len(ids))
         shifted = (frame + offsets[inverse]) % n_frames
-        surrogates[s] = autocorrelation(count_series(shifted, tid, n_frames), hi + 1)
-    mean, spread = surrogates.mean(axis=0), surrogates.std(axis=0, ddof=1)
+        surrogates[s] = autocovariance(count_series(shifted, tid, n_frames), hi + 1)
+    # Autocovariances, not correlations: a shift keeps each trajectory's own terms and the
+    # mean exactly, so the difference is the between-firefly part alone, at every lag (the
+    # variances differ: flashes piling up in a synchronous night raise the original's).
+    mean, spread = surrogates.mean(axis=0) / acov[0], surrogates.std(axis=0, ddof=1) / acov[0]
     excess = rho - mean
     peak = _peak(excess, lo, hi)
     if peak is None:
