@@ -70,7 +70,8 @@ def sunset_utc(date: dt.date, latitude: float, longitude: float) -> dt.datetime 
         hour_angle_deg = math.degrees(math.acos(cos_h))
         minutes = noon_minutes - eot + 4.0 * hour_angle_deg
         when = dt.datetime.combine(date, dt.time(tzinfo=dt.UTC)) + dt.timedelta(minutes=minutes)
-    return when
+    # Whole seconds: the equations are good to a minute at best.
+    return (when + dt.timedelta(microseconds=500_000)).replace(microsecond=0)
 
 
 def nearest_sunset(when: dt.datetime, latitude: float, longitude: float) -> dt.datetime | None:

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
-from pipeline.params import PatternParams
+from pipeline.params import LinkingParams, PatternParams
 from pipeline.patterns import (
     flashes_from_streaks,
     group_quantiles,
@@ -13,6 +15,8 @@ from pipeline.patterns import (
     per_trajectory,
     synchrony,
 )
+from pipeline.trajectories import link
+from pipeline.triangulate import Points3D
 
 FPS = 30.0
 
@@ -131,3 +135,31 @@ def test_too_few_trajectories_for_a_synchrony_test() -> None:
     _, night = night_patterns(table, FPS, 900, PatternParams())
     assert night["synchronous"] is None
     assert night["ifi_s"]["median"] == pytest.approx(0.5)
+
+
+def test_a_real_synchronous_swarm_is_found_synchronous(shared_dir: Path) -> None:
+    """Photinus carolinus in a tent (Sarfati et al. 2020; 60 fps, 30 min): flashes every
+    ~0.55 s in synchronous bursts. Linked with the pipeline's own linking, as a run would."""
+    data = np.loadtxt(shared_dir / "data/real-3d/xyzt_tent.csv", delimiter=",")
+    data = data[np.argsort(data[:, 3], kind="stable")]
+    frame = data[:, 3].astype(np.int64)
+    n = len(frame)
+    index = np.arange(n)
+    points = Points3D(
+        data[:, :3], frame, np.zeros(n), np.linalg.norm(data[:, :3], axis=1), index, index
+    )
+    linking = link(points, 60.0, LinkingParams())
+    table = {
+        "x": data[:, 0],
+        "y": data[:, 1],
+        "z": data[:, 2],
+        "frame": frame,
+        "streak_id": linking.streak_id,
+        "trajectory_id": linking.trajectory_id,
+    }
+    _, night = night_patterns(table, 60.0, int(frame.max()) + 1, PatternParams())
+    assert night["synchronous"] is True
+    assert 0.5 <= night["period_s"] <= 0.65
+    assert night["ifi_s"]["median"] == pytest.approx(night["period_s"], abs=2 / 60)
+    assert night["strength"] > 0.3
+    assert 0.05 < night["flash_duration_s"]["median"] < 0.2
