@@ -86,6 +86,11 @@ def upload_through_the_form(
     page.fill("#date", NIGHT["date"])
     page.fill("#separation", str(NIGHT["separation_m"]))
     page.fill("#height", str(NIGHT["height_m"]))
+    page.fill("#latitude", str(NIGHT["latitude"]))
+    page.fill("#longitude", str(NIGHT["longitude"]))
+    page.fill("#time-zone", NIGHT["time_zone"])
+    page.fill("#start-time", NIGHT["start_time"])
+    page.fill("#camera-model", NIGHT["camera_model"])
     page.set_input_files("#cam1-files", [str(p) for p in recording[1]])
     page.set_input_files("#cam2-files", [str(p) for p in reversed(recording[2])])  # sorted by name
     assert page.locator("#cam2-list li").all_inner_texts()[0].startswith(recording[2][0].name)

@@ -101,7 +101,7 @@ def test_stages_run_in_dependency_order(
     broker = Broker()
     call(sessions, workflow.submit, storage, broker, job_id)
     assert broker.take() == ["probe"]
-    assert Counter(statuses(sessions, job_id).values()) == {"queued": 1, "pending": 7}
+    assert Counter(statuses(sessions, job_id).values()) == {"queued": 1, "pending": 9}
 
     finish(sessions, job_id, ["probe"])
     call(sessions, workflow.advance, storage, broker, job_id)
@@ -110,9 +110,9 @@ def test_stages_run_in_dependency_order(
         for c in (1, 2)
         for a, b in ((0, 180), (180, 360), (360, 540), (540, 600))
     ]
-    assert sorted(broker.take()) == sorted(chunks)
+    assert sorted(broker.take()) == sorted([*chunks, "clock"])  # the clock needs the probe only
 
-    finish(sessions, job_id, chunks[:4])  # camera 1 done: only its merge may start
+    finish(sessions, job_id, [*chunks[:4], "clock"])  # camera 1 done: only its merge may start
     call(sessions, workflow.advance, storage, broker, job_id)
     assert broker.take() == ["merge/cam1"]
     finish(sessions, job_id, [*chunks[4:], "merge/cam1"])
@@ -124,7 +124,8 @@ def test_stages_run_in_dependency_order(
         ("sync", "pose"),
         ("pose", "triangulate"),
         ("triangulate", "link"),
-        ("link", "report"),
+        ("link", "patterns"),
+        ("patterns", "report"),
     ]:
         finish(sessions, job_id, [previous])
         call(sessions, workflow.advance, storage, broker, job_id)
@@ -239,7 +240,7 @@ def test_rerun_reuses_earlier_stages(
         assert job.status == "queued" and job.error is None
         assert [a.name for a in job.artifacts] == ["work/sync.json"]
     for key, (attempt, status) in before.items():
-        if key in ("pose", "triangulate", "link", "report"):
+        if key in ("pose", "triangulate", "clock", "link", "patterns", "report"):
             assert after[key] == (attempt, "queued" if key == "pose" else "pending")
         else:
             assert after[key] == (attempt, status) == (1, "succeeded")
