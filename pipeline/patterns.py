@@ -142,15 +142,18 @@ def intervals(flashes: Flashes, fps: float, train_gap_s: float) -> tuple[FloatAr
     train : ndarray of int64
         Per flash, a night-wide train index (consecutive within a trajectory).
     """
-    same = flashes.trajectory_id[1:] == flashes.trajectory_id[:-1]
     gap_s = np.diff(flashes.first_frame) / fps
-    within = same & (gap_s <= train_gap_s)
-    train = (
-        np.concatenate([[0], np.cumsum(~within)]).astype(np.int64)
-        if len(flashes)
-        else (np.zeros(0, dtype=np.int64))
-    )
+    within = within_trains(flashes, fps, train_gap_s)
+    if len(flashes) == 0:
+        return gap_s, np.zeros(0, dtype=np.int64)
+    train = np.concatenate([[0], np.cumsum(~within)]).astype(np.int64)
     return gap_s[within], train
+
+
+def within_trains(flashes: Flashes, fps: float, train_gap_s: float) -> NDArray[np.bool_]:
+    """Per pair of consecutive flashes: same trajectory, onsets at most `train_gap_s` apart."""
+    same = flashes.trajectory_id[1:] == flashes.trajectory_id[:-1]
+    return same & (np.diff(flashes.first_frame) / fps <= train_gap_s)
 
 
 def group_quantiles(
@@ -241,9 +244,7 @@ def per_trajectory(
     _, dq = group_quantiles(flashes.trajectory_id, duration_s, (0.25, 0.5, 0.75))
     dq = _align(ids, np.unique(flashes.trajectory_id), dq)
     ifi_s, train = intervals(flashes, fps, params.train_gap_s)
-    same_t = flashes.trajectory_id[1:] == flashes.trajectory_id[:-1]
-    within = same_t & (np.diff(flashes.first_frame) / fps <= params.train_gap_s)
-    ifi_owner = flashes.trajectory_id[1:][within]
+    ifi_owner = flashes.trajectory_id[1:][within_trains(flashes, fps, params.train_gap_s)]
     ifi_ids, iq = group_quantiles(ifi_owner, ifi_s, (0.5,))
     ifi_median = _align(ids, ifi_ids, iq)[:, 0]
     n_flashes = np.bincount(np.searchsorted(ids, flashes.trajectory_id), minlength=n)
@@ -311,11 +312,10 @@ def _peak(curve: FloatArray, lo: int, hi: int) -> int | None:
     return int(candidates[curve[candidates] >= HARMONIC_FRACTION * best][0])
 
 
-def count_series(frame: IntArray, trajectory_id: IntArray, n_frames: int) -> FloatArray:
-    """N(k): flashes lit in each camera-1 frame."""
-    return np.bincount(np.asarray(frame, dtype=np.int64), minlength=n_frames)[:n_frames].astype(
-        np.float64
-    )
+def count_series(frame: IntArray, n_frames: int) -> FloatArray:
+    """N(k): flashes lit in each camera-1 frame ``k`` of ``[0, n_frames)``."""
+    counts = np.bincount(np.asarray(frame, dtype=np.int64), minlength=n_frames)
+    return counts[:n_frames].astype(np.float64)
 
 
 def synchrony(
@@ -345,7 +345,7 @@ def synchrony(
     }
     if len(frame) == 0 or n_frames < 2 * hi + 2:
         return result
-    acov = autocovariance(count_series(frame, tid, n_frames), hi + 1)
+    acov = autocovariance(count_series(frame, n_frames), hi + 1)
     if acov[0] <= 0:
         return result
     rho = acov / acov[0]
@@ -362,7 +362,7 @@ def synchrony(
     for s in range(params.n_surrogates):
         offsets = rng.integers(-shift, shift + 1, len(ids))
         shifted = (frame + offsets[inverse]) % n_frames
-        surrogates[s] = autocovariance(count_series(shifted, tid, n_frames), hi + 1)
+        surrogates[s] = autocovariance(count_series(shifted, n_frames), hi + 1)
     # Autocovariances, not correlations: a shift keeps each trajectory's own terms and the
     # mean exactly, so the difference is the between-firefly part alone, at every lag (the
     # variances differ: flashes piling up in a synchronous night raise the original's).
