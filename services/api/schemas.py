@@ -6,6 +6,7 @@ import datetime as dt
 import re
 import uuid
 from typing import Annotated, Any, Literal
+from zoneinfo import ZoneInfo
 
 from pydantic import (
     AfterValidator,
@@ -140,6 +141,11 @@ class NightCreate(Strict):
     @model_validator(mode="after")
     def _placeable_start(self) -> NightCreate:
         check_start_time(self.start_time, self.time_zone)
+        if self.start_time is not None and self.start_time.tzinfo is None:
+            # Wall-clock time at the site: stored as the instant it names (a naive value
+            # would be read back as UTC from the timestamptz column).
+            assert self.time_zone is not None
+            self.start_time = self.start_time.replace(tzinfo=ZoneInfo(self.time_zone))
         return self
 
 
