@@ -13,11 +13,17 @@ from __future__ import annotations
 CAMERAS = (1, 2)
 
 PROBE_JSON = "work/probe.json"
+#: The night's clock: camera 1's frame 0 in UTC, the sunset (`pipeline.clock`).
+CLOCK_JSON = "work/clock.json"
 SYNC_JSON = "work/sync.json"
 CALIBRATION_PAIRS_NPZ = "work/calibration_pairs.npz"
 POINTS_NPZ = "work/points.npz"
 CALIBRATION_JSON = "calibration.json"
 TRAJECTORIES_CSV = "trajectories.csv"
+#: One row per trajectory: flash durations, intervals, trains, speed (`pipeline.patterns`).
+FLASH_PATTERNS_CSV = "flash_patterns.csv"
+#: Frictionless Data Package describing the results (`pipeline.package`).
+DATAPACKAGE_JSON = "datapackage.json"
 REPORT_DIR = "report"
 SUMMARY_JSON = "report/summary.json"
 METRICS_DIR = "work/metrics"

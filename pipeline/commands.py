@@ -17,6 +17,7 @@ from tqdm import tqdm
 from pipeline import artifacts
 
 if TYPE_CHECKING:  # the stages load models and libraries: import them when a command runs
+    from pipeline.night import NightInfo
     from pipeline.params import ProcessParams
     from pipeline.run import RunOutcome, RunProgress
     from pipeline.simulate import SimulatedRecording, SimulationConfig
@@ -98,6 +99,72 @@ def _params_from_args(args: argparse.Namespace) -> ProcessParams:
     return ProcessParams().merged(overrides)
 
 
+def _add_night_options(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_argument_group(
+        "the night",
+        "Where and when the recording was made: placed in real time (timestamp_utc, "
+        "minutes_after_sunset) and described in the data package (--package).",
+    )
+    group.add_argument("--site", help="where, in words")
+    group.add_argument("--date", metavar="YYYY-MM-DD", help="local date the recording started")
+    group.add_argument("--latitude", type=float, metavar="DEG", help="decimal degrees, north +")
+    group.add_argument("--longitude", type=float, metavar="DEG", help="decimal degrees, east +")
+    group.add_argument(
+        "--time-zone",
+        metavar="NAME",
+        help="IANA time zone of the site, e.g. America/New_York (the cameras' clocks show "
+        "local time: GoPro)",
+    )
+    group.add_argument(
+        "--camera-clock",
+        choices=("local", "utc"),
+        default="local",
+        help="how the videos' creation time is written: the camera's local wall-clock time "
+        "(GoPro, default) or UTC",
+    )
+    group.add_argument(
+        "--start-time",
+        metavar="ISO",
+        help="when camera 1's first frame was recorded, e.g. 2026-06-12T21:30:00-04:00 "
+        "(without offset: local time in --time-zone); overrides the videos' creation time",
+    )
+    group.add_argument("--camera-model", metavar="TEXT", help="e.g. 'GoPro Max'")
+    group.add_argument("--notes", default="", help="free text")
+    group.add_argument(
+        "--package",
+        action="store_true",
+        help="also write datapackage.json (Frictionless Data Package) and a zip of the "
+        "results with it",
+    )
+
+
+def _night_from_args(args: argparse.Namespace) -> NightInfo:
+    from pipeline.night import NightInfo
+
+    return NightInfo(
+        site=args.site,
+        date=args.date,
+        latitude=args.latitude,
+        longitude=args.longitude,
+        time_zone=args.time_zone,
+        camera_clock=args.camera_clock,
+        start_time=args.start_time,
+        camera_model=args.camera_model,
+        notes=args.notes,
+    )
+
+
+def _write_package(outcome: RunOutcome, night: NightInfo) -> None:
+    from pipeline.package import write_package
+
+    out = outcome.out_dir
+    calibration_path = out / artifacts.CALIBRATION_JSON
+    calibration = json.loads(calibration_path.read_text()) if calibration_path.exists() else None
+    summary = json.loads((out / artifacts.SUMMARY_JSON).read_text())
+    descriptor, archive = write_package(out, night, calibration, summary)
+    print(f"data package       {descriptor.name} and {archive.name}")
+
+
 class _RenamedOption(argparse.Action):
     """An option that was renamed: using it is an error that names the new spelling."""
 
@@ -159,6 +226,7 @@ def print_summary(outcome: RunOutcome) -> None:
         f"{counts['calibration_pairs']}; t = ({t[0]:+.3f}, {t[1]:+.3f}, {t[2]:+.3f})",
         f"3D flashes         {counts['points']} in {counts['streaks']} streaks, "
         f"{counts['trajectories']} trajectories",
+        *_pattern_lines(summary),
         f"time               {sum(v or 0 for v in summary['timings_s'].values()):.1f} s",
     ]
     lines += [f"warning: {w}" for w in summary["warnings"]]
@@ -166,25 +234,59 @@ def print_summary(outcome: RunOutcome) -> None:
     print("\n".join(lines))
 
 
-def _run_with_params(
-    args: argparse.Namespace, action: Callable[[ProcessParams, RunProgress], RunOutcome]
-) -> int:
-    """Run with the options' parameters and progress bars, then print the summary.
+def _pattern_lines(summary: dict[str, Any]) -> list[str]:
+    """The night's clock and flash pattern in a few lines (nothing that is unknown)."""
+    lines = []
+    clock = summary.get("clock") or {}
+    if clock.get("start_utc"):
+        after = clock.get("start_minutes_after_sunset")
+        sunset = f", {after:+.0f} min after sunset" if after is not None else ""
+        lines.append(f"recording started  {clock['start_utc']}{sunset}")
+    night = summary.get("patterns") or {}
+    duration, ifi = night.get("flash_duration_s") or {}, night.get("ifi_s") or {}
+    if duration.get("median") is not None:
+        text = f"flash duration     median {duration['median']:.3f} s"
+        if ifi.get("median") is not None:
+            text += f"; inter-flash interval median {ifi['median']:.3f} s"
+        lines.append(text)
+    if night.get("synchronous") is not None:
+        verdict = "yes" if night["synchronous"] else "no"
+        lines.append(
+            f"synchrony          {verdict} (strength {night['strength']:.2f} at "
+            f"{night['period_s']:.2f} s, z = {night['z']:.1f})"
+            if night.get("period_s") is not None
+            else f"synchrony          {verdict}"
+        )
+    return lines
 
-    Invalid parameters exit with status 2, bad input (files, values) with 1; either way
-    one readable message on stderr and no traceback.
+
+def _run_with_params(
+    args: argparse.Namespace,
+    action: Callable[[ProcessParams, RunProgress, NightInfo], RunOutcome],
+) -> int:
+    """Run with the options' parameters, night and progress bars; print the summary.
+
+    Invalid parameters or night options exit with status 2, bad input (files, values)
+    with 1; either way one readable message on stderr and no traceback. With
+    ``--package`` the data package is written after the run.
     """
+    from pipeline.night import NightInfo
+
     try:
         params = _params_from_args(args)
-        with stage_bars(enabled=not args.quiet) as progress:
-            outcome = action(params, progress)
+        night = _night_from_args(args) if hasattr(args, "site") else NightInfo()
     except ValidationError as exc:
         print(f"error: invalid parameters:\n{exc}", file=sys.stderr)
         return 2
+    try:
+        with stage_bars(enabled=not args.quiet) as progress:
+            outcome = action(params, progress, night)
+        print_summary(outcome)
+        if getattr(args, "package", False):
+            _write_package(outcome, night)
     except INPUT_ERRORS as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
-    print_summary(outcome)
     return 0
 
 
@@ -213,6 +315,7 @@ def _add_process(subparsers: argparse._SubParsersAction) -> None:
     )
     _renamed(parser, "--height", "--camera-height")
     _add_run_options(parser)
+    _add_night_options(parser)
     _add_parameter_options(parser, tracking=True)
     parser.set_defaults(func=_process)
 
@@ -222,7 +325,7 @@ def _process(args: argparse.Namespace) -> int:
 
     return _run_with_params(
         args,
-        lambda params, progress: process(
+        lambda params, progress, night: process(
             args.cam1,
             args.cam2,
             args.separation,
@@ -230,6 +333,7 @@ def _process(args: argparse.Namespace) -> int:
             params,
             progress,
             camera_height_m=args.camera_height,
+            night=night,
         ),
     )
 
@@ -251,7 +355,11 @@ def _add_reconstruct(subparsers: argparse._SubParsersAction) -> None:
     _renamed(parser, "--width", "--frame-width")
     _renamed(parser, "--height", "--frame-height")
     parser.add_argument("--fps", type=float, required=True)
+    parser.add_argument(
+        "--camera-height", type=float, metavar="METRES", help="camera height above the ground"
+    )
     _add_run_options(parser)
+    _add_night_options(parser)
     _add_parameter_options(parser, tracking=False)
     parser.set_defaults(func=_reconstruct)
 
@@ -261,7 +369,7 @@ def _reconstruct(args: argparse.Namespace) -> int:
 
     return _run_with_params(
         args,
-        lambda params, progress: reconstruct(
+        lambda params, progress, night: reconstruct(
             args.flashes1,
             args.flashes2,
             args.frame_width,
@@ -271,6 +379,8 @@ def _reconstruct(args: argparse.Namespace) -> int:
             args.out,
             params,
             progress,
+            night=night,
+            camera_height_m=args.camera_height,
         ),
     )
 
@@ -379,8 +489,15 @@ def _demo(args: argparse.Namespace) -> int:
     recording = _render(config, out / "recording", args.quiet)
     code = _run_with_params(
         args,
-        lambda params, progress: process(
-            recording.cam1, recording.cam2, config.separation_m, out / "results", params, progress
+        lambda params, progress, night: process(
+            recording.cam1,
+            recording.cam2,
+            config.separation_m,
+            out / "results",
+            params,
+            progress,
+            camera_height_m=config.camera_height_m,
+            night=night,
         ),
     )
     if code:

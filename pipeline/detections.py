@@ -222,6 +222,8 @@ def write_csv(
 
 
 def _format_column(values: NDArray, fmt: str | None) -> NDArray[np.str_]:
+    if values.dtype.kind == "U":  # text (e.g. ISO 8601 times), written as it is
+        return values
     if values.dtype.kind in "iub":
         return values.astype(np.int64).astype(str)
     fmt = fmt or "%.6g"
@@ -229,8 +231,12 @@ def _format_column(values: NDArray, fmt: str | None) -> NDArray[np.str_]:
     return np.where(np.isnan(values.astype(np.float64)), "", out)
 
 
-def read_csv(path: str | Path, required: Sequence[str] = ()) -> dict[str, NDArray[np.float64]]:
+def read_csv(
+    path: str | Path, required: Sequence[str] = (), text: Sequence[str] = ()
+) -> dict[str, NDArray]:
     """Read a numeric CSV with a header row into float64 columns (empty field = NaN).
+
+    Columns named in `text` (if present) are returned as strings, as written.
 
     Raises
     ------
@@ -250,13 +256,23 @@ def read_csv(path: str | Path, required: Sequence[str] = ()) -> dict[str, NDArra
                 f"{path}: missing column(s) {', '.join(missing)}; header is {header!r}"
             )
         lines = [line for line in fh.read().splitlines() if line.strip()]
+    numeric = [j for j, name in enumerate(names) if name not in text]
     data = np.full((len(lines), len(names)), np.nan)
+    strings: list[list[str]] = []
     for i, line in enumerate(lines):
         cells = line.split(",")
         if len(cells) != len(names):
             raise ValueError(f"{path}: line {i + 2} has {len(cells)} fields, expected {len(names)}")
+        if len(numeric) < len(names):
+            strings.append(cells)
         try:
-            data[i] = [float(c) if c.strip() else np.nan for c in cells]
+            data[i, numeric] = [float(cells[j]) if cells[j].strip() else np.nan for j in numeric]
         except ValueError as exc:
             raise ValueError(f"{path}: line {i + 2}: {exc}") from None
-    return {name: data[:, j] for j, name in enumerate(names)}
+    columns: dict[str, NDArray] = {}
+    for j, name in enumerate(names):
+        if name in text:
+            columns[name] = np.array([row[j] for row in strings], dtype=str)
+        else:
+            columns[name] = data[:, j]
+    return columns

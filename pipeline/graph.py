@@ -15,7 +15,8 @@ videos it needs, and where its function is. Three runners iterate the same table
 Adding a stage is one entry here and one function (``StageContext -> StageResult``)::
 
     probe ─▶ track (chunks × cameras) ─▶ merge (× cameras) ─▶ sync ─▶ pose ─▶ triangulate
-          ─▶ link ─▶ report
+          ─▶ link ─▶ patterns ─▶ report
+      └──▶ clock (the night's real time; needed from link on) ──┘
 
 File names in ``reads`` / ``writes`` are `pipeline.artifacts` templates: ``{camera}``
 expands to the unit's camera (to both cameras for a whole-run unit) and
@@ -44,6 +45,8 @@ from pipeline.artifacts import (
     CANDIDATES_NPZ,
     CHUNK_METRICS_JSON,
     CHUNK_NPZ,
+    CLOCK_JSON,
+    FLASH_PATTERNS_CSV,
     FLASHES_CSV,
     METRICS_DIR,
     POINTS_NPZ,
@@ -54,6 +57,7 @@ from pipeline.artifacts import (
 )
 from pipeline.chunking import chunk_ranges, frames_read
 from pipeline.jsonio import read_json, write_json
+from pipeline.night import NightInfo
 from pipeline.params import ProcessParams
 from pipeline.probe import StereoProbe
 
@@ -127,7 +131,8 @@ class StageContext:
 
     ``videos`` maps camera to ``{chapter index: local file}`` and holds at least the
     chapters `chapters_needed` names for the unit. The run folder ``workdir`` holds the
-    files the unit reads (`reads`) and receives what it writes.
+    files the unit reads (`reads`) and receives what it writes. ``night`` is what is
+    known about the recording session (site, place, time zone…; `pipeline.night`).
     """
 
     workdir: Path
@@ -135,6 +140,7 @@ class StageContext:
     params: ProcessParams
     separation_m: float
     camera_height_m: float | None = None
+    night: NightInfo = field(default_factory=NightInfo)
     videos: Mapping[int, Mapping[int, Path]] = field(default_factory=dict)
     progress: Callable[[float], None] = field(default=lambda fraction: None)
     stages: Sequence[Stage] = field(default_factory=lambda: STAGES)
@@ -262,17 +268,33 @@ STAGES: tuple[Stage, ...] = (
         description="match flashes between synchronised frames and triangulate them",
     ),
     Stage(
+        "clock",
+        "pipeline.stages:clock",
+        after=("probe",),
+        reads=(PROBE_JSON,),
+        writes=(CLOCK_JSON,),
+        description="place the recording in real time (UTC) and find the night's sunset",
+    ),
+    Stage(
         "link",
         "pipeline.stages:link",
-        after=("triangulate",),
-        reads=(PROBE_JSON, POINTS_NPZ),
+        after=("triangulate", "clock"),
+        reads=(PROBE_JSON, POINTS_NPZ, CLOCK_JSON),
         writes=(TRAJECTORIES_CSV,),
         description="link 3D flashes into streaks and trajectories",
     ),
     Stage(
+        "patterns",
+        "pipeline.stages:patterns",
+        after=("link",),
+        reads=(PROBE_JSON, CLOCK_JSON, TRAJECTORIES_CSV),
+        writes=(FLASH_PATTERNS_CSV,),
+        description="flash durations, inter-flash intervals, trains, period and synchrony",
+    ),
+    Stage(
         "report",
         "pipeline.stages:report",
-        after=("link",),
+        after=("patterns",),
         reads=(
             PROBE_JSON,
             SYNC_JSON,
@@ -280,6 +302,8 @@ STAGES: tuple[Stage, ...] = (
             CALIBRATION_PAIRS_NPZ,
             TRAJECTORIES_CSV,
             FLASHES_CSV,
+            CLOCK_JSON,
+            FLASH_PATTERNS_CSV,
             EARLIER_METRICS,
         ),
         writes=(REPORT_DIR,),

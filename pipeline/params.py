@@ -278,6 +278,69 @@ class LinkingParams(BaseModel):
     )
 
 
+class PatternParams(BaseModel):
+    """How flash patterns are read from the trajectories (`pipeline.patterns`)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    join_gap_frames: int = Field(
+        default=1,
+        ge=0,
+        le=10,
+        description="Streaks of one trajectory separated by at most this many dark frames "
+        "are one flash (a frame the detector missed mid-flash; 0 = every streak a flash).",
+    )
+    train_gap_s: float = Field(
+        default=2.0,
+        gt=0,
+        description="Onset-to-onset interval (s) above which two flashes of a trajectory "
+        "belong to different trains: not an inter-flash interval.",
+    )
+    period_range_s: tuple[float, float] = Field(
+        default=(0.2, 2.0),
+        description="Range of periods (s) searched in the night's flash-count series "
+        "(low, high); synchronous species flash every 0.3–1 s within a burst.",
+    )
+    n_surrogates: int = Field(
+        default=20,
+        ge=5,
+        le=500,
+        description="Surrogate nights (each trajectory shifted at random) the count series' "
+        "autocorrelation is compared with.",
+    )
+    surrogate_shift_s: float = Field(
+        default=10.0,
+        gt=0,
+        description="Trajectories are shifted by up to ± this many seconds in a surrogate: "
+        "long against the periods searched, short against changes of activity.",
+    )
+    min_sync_strength: float = Field(
+        default=0.1,
+        ge=0,
+        le=1,
+        description="Synchrony needs the count series' autocorrelation at the period to "
+        "exceed the surrogates' mean by at least this much.",
+    )
+    min_sync_z: float = Field(
+        default=4.0,
+        ge=0,
+        description="…and by at least this many standard deviations of the surrogates.",
+    )
+    min_trajectories: int = Field(
+        default=5,
+        ge=2,
+        description="Fewest trajectories for a synchrony test (fewer: not assessed).",
+    )
+    seed: int = Field(default=0, ge=0, description="Seed of the surrogate shifts.")
+
+    @model_validator(mode="after")
+    def _ordered_range(self) -> PatternParams:
+        low, high = self.period_range_s
+        if not 0 < low < high:
+            raise ValueError(f"period_range_s must be 0 < low < high, got {self.period_range_s}")
+        return self
+
+
 class ClassifierParams(BaseModel):
     """Which flash classifier to run on candidate patches, and where to cut."""
 
@@ -303,6 +366,7 @@ class ProcessParams(BaseModel):
     triangulation: TriangulationParams = TriangulationParams()
     linking: LinkingParams = LinkingParams()
     flicker: FlickerParams = FlickerParams()
+    patterns: PatternParams = PatternParams()
     chunk_s: float = Field(60.0, gt=0, description="Length of a tracking chunk, seconds.")
 
     def merged(self, overrides: Mapping[str, Any]) -> Self:

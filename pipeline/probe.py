@@ -37,6 +37,9 @@ class ChapterInfo:
     first_pts : int
         Presentation timestamp of the first frame, in the stream's time base; frame
         ``i`` of the chapter is the one presented ``i / fps`` seconds later.
+    creation_time : str or None
+        The container's ``creation_time`` as written (ISO 8601, whole seconds in MP4);
+        what clock it is on is the night's to say (`pipeline.clock`). None if absent.
     """
 
     path: Path
@@ -44,6 +47,7 @@ class ChapterInfo:
     first_frame: int
     codec: str
     first_pts: int = 0
+    creation_time: str | None = None
 
     @property
     def stop_frame(self) -> int:
@@ -121,6 +125,7 @@ class VideoInfo:
                     "first_frame": ch.first_frame,
                     "codec": ch.codec,
                     "first_pts": ch.first_pts,
+                    "creation_time": ch.creation_time,
                 }
                 for ch in self.chapters
             ],
@@ -148,6 +153,7 @@ class VideoInfo:
                     first_frame=int(ch["first_frame"]),
                     codec=str(ch["codec"]),
                     first_pts=int(ch.get("first_pts", 0)),
+                    creation_time=ch.get("creation_time"),
                 )
                 for ch in data["chapters"]
             )

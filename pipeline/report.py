@@ -1,8 +1,9 @@
 """Quality report of a run: PNG plots (the summary is `pipeline.summary`).
 
 Plots: the per-frame flash counts of both cameras aligned by the estimated delay, the
-delay votes and cross-correlation, the calibration residuals, and the trajectories in
-3D (and from above), coloured by trajectory.
+delay votes and cross-correlation, the calibration residuals, the trajectories in 3D
+(and from above) as lines joining each trajectory's flashes in time order, and the
+night's flash pattern (`pipeline.pattern_plots`).
 """
 
 from __future__ import annotations
@@ -15,15 +16,20 @@ import matplotlib
 matplotlib.use("Agg")  # files only: never needs a display
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.collections import LineCollection
+from mpl_toolkits.mplot3d.art3d import Line3DCollection
 
 from pipeline import artifacts
+from pipeline.clock import NightClock
 from pipeline.detections import Detections
 from pipeline.jsonio import read_json
+from pipeline.params import PatternParams
+from pipeline.pattern_plots import pattern_plots
 from pipeline.probe import StereoProbe
 from pipeline.results import read_trajectories
 
 
-def write_plots(workdir: Path) -> list[str]:
+def write_plots(workdir: Path, patterns: PatternParams | None = None) -> list[str]:
     """Write the report's plots; return their names relative to `workdir`."""
     report_dir = workdir / artifacts.REPORT_DIR
     report_dir.mkdir(parents=True, exist_ok=True)
@@ -42,6 +48,18 @@ def write_plots(workdir: Path) -> list[str]:
         ),
         "trajectories_3d.png": lambda p: plot_trajectories(trajectories, p),
     }
+    clock_path = workdir / artifacts.CLOCK_JSON
+    plots.update(
+        pattern_plots(
+            trajectories,
+            probe.fps,
+            probe.n_frames[1],
+            patterns or PatternParams(),
+            NightClock.load(clock_path) if clock_path.exists() else NightClock(),
+            read_json(workdir / artifacts.CALIBRATION_JSON).get("camera_height_m"),
+            _save,
+        )
+    )
     names = []
     for filename, draw in plots.items():
         draw(report_dir / filename)
@@ -115,16 +133,33 @@ def plot_residuals(residuals: np.ndarray, inliers: np.ndarray, path: Path) -> No
     _save(fig, path)
 
 
+def trajectory_segments(trajectories: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Line segments joining each trajectory's flash points in time order.
+
+    Returns segments ``(n, 2, 3)`` (metres) and the trajectory id of each.
+    """
+    tid = np.asarray(trajectories["trajectory_id"], dtype=np.int64)
+    order = np.lexsort((trajectories["frame"], tid))
+    xyz = np.column_stack([trajectories[c] for c in ("x", "y", "z")])[order]
+    same = tid[order][1:] == tid[order][:-1]
+    return np.stack([xyz[:-1], xyz[1:]], axis=1)[same], tid[order][1:][same]
+
+
 def plot_trajectories(trajectories: dict[str, np.ndarray], path: Path) -> None:
-    """Trajectories in 3D and from above, one colour per trajectory."""
+    """Trajectories in 3D and from above: each trajectory's flashes joined in time order
+    by lines of its colour, flash points as dots."""
     fig = plt.figure(figsize=(11, 5))
     ax3d = fig.add_subplot(1, 2, 1, projection="3d")
     top = fig.add_subplot(1, 2, 2)
     x, y, z = trajectories["x"], trajectories["y"], trajectories["z"]
     colour = trajectories["trajectory_id"] % 20
+    segments, owner = trajectory_segments(trajectories)
+    colours = plt.get_cmap("tab20")(owner % 20)
+    ax3d.add_collection3d(Line3DCollection(segments, colors=colours, linewidths=0.8))
     ax3d.scatter(x, y, z, c=colour, cmap="tab20", s=2, vmin=0, vmax=19)
     ax3d.scatter([0], [0], [0], c="k", marker="^", s=30)
     ax3d.set(xlabel="x (m)", ylabel="y (m)", zlabel="z (m)", title="Trajectories")
+    top.add_collection(LineCollection(list(segments[:, :, :2]), colors=colours, linewidths=0.8))
     top.scatter(x, y, c=colour, cmap="tab20", s=2, vmin=0, vmax=19)
     top.plot([0], [0], "k^")
     top.set(xlabel="x (m)", ylabel="y (m)", title="From above (camera 1 at ▲)")

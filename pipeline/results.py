@@ -5,7 +5,9 @@
   ``width``, ``height``, ``n_calibration_pairs`` and residual statistics.
 * ``work/probe.json``: frame size, fps and each camera's length (and video probe).
 * ``trajectories.csv``: ``x,y,z,frame,time_s,streak_id,trajectory_id`` then extra
-  columns; one row per triangulated flash, metres in camera 1's frame, camera-1 frames.
+  columns (``gap_m,range_m,timestamp_utc,minutes_after_sunset``; the last two empty
+  when the night's clock or location is unknown); one row per triangulated flash,
+  metres in camera 1's frame, camera-1 frames.
 """
 
 from __future__ import annotations
@@ -15,7 +17,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
+from pipeline.clock import NightClock
 from pipeline.detections import read_csv, write_csv
 from pipeline.geometry import Pose
 from pipeline.jsonio import read_json, write_json
@@ -24,7 +28,9 @@ from pipeline.triangulate import Points3D
 
 #: Leading columns of ``trajectories.csv`` (CONTRACT), then the extra ones we add.
 TRAJECTORY_COLUMNS = ("x", "y", "z", "frame", "time_s", "streak_id", "trajectory_id")
-TRAJECTORY_EXTRA_COLUMNS = ("gap_m", "range_m")
+TRAJECTORY_EXTRA_COLUMNS = ("gap_m", "range_m", "timestamp_utc", "minutes_after_sunset")
+#: Columns of the results CSVs that hold text (ISO 8601 times), not numbers.
+TEXT_COLUMNS = ("timestamp_utc",)
 
 
 @dataclass(frozen=True)
@@ -97,8 +103,15 @@ def load_points(path: Path) -> Points3D:
         )
 
 
-def write_trajectories(path: Path, points: Points3D, linking: Linking, fps: float) -> None:
-    """Write ``trajectories.csv`` (CONTRACT header, then ``gap_m,range_m``)."""
+def write_trajectories(
+    path: Path, points: Points3D, linking: Linking, fps: float, clock: NightClock | None = None
+) -> None:
+    """Write ``trajectories.csv``: CONTRACT header, then `TRAJECTORY_EXTRA_COLUMNS`.
+
+    ``timestamp_utc`` and ``minutes_after_sunset`` come from the night's `clock` and are
+    empty where it does not know them.
+    """
+    clock = clock or NightClock()
     write_csv(
         path,
         {
@@ -111,8 +124,11 @@ def write_trajectories(path: Path, points: Points3D, linking: Linking, fps: floa
             "trajectory_id": linking.trajectory_id,
             "gap_m": points.gap_m,
             "range_m": points.range_m,
+            "timestamp_utc": clock.timestamps(points.frame, fps),
+            "minutes_after_sunset": clock.minutes_after_sunset(points.frame, fps),
         },
         formats={
+            "minutes_after_sunset": "%.4f",
             "x": "%.4f",
             "y": "%.4f",
             "z": "%.4f",
@@ -125,7 +141,51 @@ def write_trajectories(path: Path, points: Points3D, linking: Linking, fps: floa
 
 def read_trajectories(path: Path) -> dict[str, np.ndarray]:
     """Columns of a ``trajectories.csv``; integer columns come back as int64."""
-    table = read_csv(path, required=TRAJECTORY_COLUMNS)
+    table = read_csv(path, required=TRAJECTORY_COLUMNS, text=TEXT_COLUMNS)
     for name in ("frame", "streak_id", "trajectory_id"):
+        table[name] = table[name].astype(np.int64)
+    return table
+
+
+#: Columns of ``flash_patterns.csv``, one row per trajectory (`pipeline.patterns`).
+FLASH_PATTERN_COLUMNS = (
+    "trajectory_id",
+    "first_frame",
+    "last_frame",
+    "first_time_s",
+    "last_time_s",
+    "n_points",
+    "n_flashes",
+    "flash_duration_median_s",
+    "flash_duration_iqr_s",
+    "ifi_median_s",
+    "n_trains",
+    "path_length_m",
+    "mean_speed_mps",
+    "mean_height_m",
+    "timestamp_utc",
+    "minutes_after_sunset",
+)
+
+
+def write_flash_patterns(
+    path: Path, rows: dict[str, np.ndarray], fps: float, clock: NightClock
+) -> None:
+    """Write ``flash_patterns.csv``: `rows` (`pipeline.patterns.per_trajectory`) and the
+    clock's ``timestamp_utc`` / ``minutes_after_sunset`` of each trajectory's first flash."""
+    columns: dict[str, ArrayLike] = {
+        **rows,
+        "timestamp_utc": clock.timestamps(rows["first_frame"], fps),
+        "minutes_after_sunset": clock.minutes_after_sunset(rows["first_frame"], fps),
+    }
+    assert tuple(columns) == FLASH_PATTERN_COLUMNS, tuple(columns)
+    formats = {name: "%.4f" for name in columns if name.endswith(("_s", "_m", "_mps"))}
+    write_csv(path, columns, formats={**formats, "minutes_after_sunset": "%.4f"})
+
+
+def read_flash_patterns(path: Path) -> dict[str, np.ndarray]:
+    """Columns of a ``flash_patterns.csv`` (times as text, counts as int64)."""
+    table = read_csv(path, required=FLASH_PATTERN_COLUMNS[:4], text=TEXT_COLUMNS)
+    for name in ("trajectory_id", "first_frame", "last_frame", "n_points", "n_flashes"):
         table[name] = table[name].astype(np.int64)
     return table

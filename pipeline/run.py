@@ -9,7 +9,7 @@ same stage functions through `pipeline.graph.execute`, and leave the same files.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
 
@@ -26,6 +26,7 @@ from pipeline.graph import (
     stage,
     stages_from,
 )
+from pipeline.night import NightInfo
 from pipeline.params import ProcessParams, validate_separation
 from pipeline.probe import StereoProbe
 
@@ -53,6 +54,7 @@ def process(
     params: ProcessParams | None = None,
     progress: RunProgress | None = None,
     camera_height_m: float | None = None,
+    night: NightInfo | None = None,
 ) -> RunOutcome:
     """Run every stage on two cameras' chapter files, in this process.
 
@@ -70,6 +72,8 @@ def process(
         ``progress(stage_label, fraction)``.
     camera_height_m : float, optional
         Height of the cameras above the ground, metres (metadata).
+    night : NightInfo, optional
+        What is known about the night (site, place, time zone, start time…).
     """
     validate_separation(separation_m)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -79,6 +83,7 @@ def process(
         params=params or ProcessParams(),
         separation_m=separation_m,
         camera_height_m=camera_height_m,
+        night=night or NightInfo(),
         videos={1: dict(enumerate(cam1)), 2: dict(enumerate(cam2))},
     )
     return run_stages(STAGES, context, progress)
@@ -94,6 +99,8 @@ def reconstruct(
     out_dir: Path,
     params: ProcessParams | None = None,
     progress: RunProgress | None = None,
+    night: NightInfo | None = None,
+    camera_height_m: float | None = None,
 ) -> RunOutcome:
     """Run the stages after ``merge`` from per-camera detections (``frame,x,y`` CSVs).
 
@@ -117,6 +124,8 @@ def reconstruct(
         unit=Unit("probe"),
         params=params or ProcessParams(),
         separation_m=separation_m,
+        camera_height_m=camera_height_m,
+        night=night or NightInfo(),
         stages=(stage("probe"), *stages_from("sync")),
     )
     return run_stages(stages_from("sync"), context, progress, outcome)
@@ -149,16 +158,9 @@ def run_stages(
 
 
 def _for_unit(context: StageContext, unit: Unit, progress: Callable[[float], None]) -> StageContext:
-    return StageContext(
-        workdir=context.workdir,
-        unit=unit,
-        params=context.params,
-        separation_m=context.separation_m,
-        camera_height_m=context.camera_height_m,
-        videos=context.videos,
-        progress=progress,
-        stages=context.stages,
-    )
+    # A fresh context (its cached probe and plan are not carried over: the probe may
+    # only now have been written).
+    return replace(context, unit=unit, progress=progress)
 
 
 def _progress_groups(units: Sequence[Unit]) -> Mapping[str, list[Unit]]:

@@ -24,6 +24,8 @@ from pipeline.artifacts import (
     CANDIDATES_NPZ,
     CHUNK_METRICS_JSON,
     CHUNK_NPZ,
+    CLOCK_JSON,
+    FLASH_PATTERNS_CSV,
     FLASHES_CSV,
     POINTS_NPZ,
     SUMMARY_JSON,
@@ -31,6 +33,7 @@ from pipeline.artifacts import (
     TRAJECTORIES_CSV,
 )
 from pipeline.classify import FlashClassifier
+from pipeline.clock import NightClock, night_clock
 from pipeline.detections import Detections
 from pipeline.flicker import flickering
 from pipeline.graph import StageContext, StageResult, earlier_units, read_record
@@ -317,7 +320,8 @@ def link(ctx: StageContext) -> StageResult:
     """Link triangulated flashes into streaks and trajectories; write trajectories.csv."""
     points = load_points(ctx.path(POINTS_NPZ))
     linking = link_points(points, ctx.probe.fps, ctx.params.linking)
-    write_trajectories(ctx.path(TRAJECTORIES_CSV), points, linking, ctx.probe.fps)
+    clock = NightClock.load(ctx.path(CLOCK_JSON))
+    write_trajectories(ctx.path(TRAJECTORIES_CSV), points, linking, ctx.probe.fps, clock)
     metrics = {
         "n_points": len(points),
         "n_streaks": len(np.unique(linking.streak_id)),
@@ -326,11 +330,44 @@ def link(ctx: StageContext) -> StageResult:
     return StageResult(metrics=metrics)
 
 
+def clock(ctx: StageContext) -> StageResult:
+    """Place camera 1's frame 0 in UTC and find the night's sunset (``work/clock.json``).
+
+    An unknown time is a warning, not a failure: the timestamp columns stay empty.
+    """
+    found = night_clock(ctx.night, ctx.probe)
+    found.save(ctx.path(CLOCK_JSON))
+    data = found.to_dict()
+    metrics = {key: data[key] for key in data if key != "warnings"}
+    return StageResult(metrics=metrics, warnings=list(found.warnings))
+
+
+def patterns(ctx: StageContext) -> StageResult:
+    """Flash patterns per trajectory (``flash_patterns.csv``) and for the night (metrics)."""
+    from pipeline.patterns import night_patterns, per_trajectory
+    from pipeline.results import read_trajectories, write_flash_patterns
+
+    probe = ctx.probe
+    table = read_trajectories(ctx.path(TRAJECTORIES_CSV))
+    n_frames = probe.n_frames[1]
+    flashes, night = night_patterns(table, probe.fps, n_frames, ctx.params.patterns)
+    rows = per_trajectory(table, flashes, probe.fps, ctx.params.patterns, ctx.camera_height_m)
+    clock = NightClock.load(ctx.path(CLOCK_JSON))
+    write_flash_patterns(ctx.path(FLASH_PATTERNS_CSV), rows, probe.fps, clock)
+    warnings = []
+    if night["synchronous"] is None and night["n_trajectories"]:
+        warnings.append(
+            f"synchrony not assessed: {night['n_trajectories']} trajectories, fewer than "
+            f"{ctx.params.patterns.min_trajectories}"
+        )
+    return StageResult(metrics={"night": night}, warnings=warnings)
+
+
 def report(ctx: StageContext) -> StageResult:
     """Plots and ``summary.json`` of a finished run."""
     from pipeline.report import write_plots  # matplotlib is only needed here
 
-    plots = write_plots(ctx.workdir)
+    plots = write_plots(ctx.workdir, ctx.params.patterns)
     records = {u: read_record(ctx.workdir, u) for u in earlier_units(ctx.unit, ctx.units)}
     write_json(ctx.workdir / SUMMARY_JSON, summarise(records, ctx.params))
     return StageResult(metrics={"n_plots": len(plots)})

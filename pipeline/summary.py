@@ -31,7 +31,9 @@ def summarise(records: Mapping[Unit, StageResult], params: ProcessParams) -> dic
     -------
     dict
         ``counts``, ``delay_frames``, ``delay_confidence``, ``rotation``,
-        ``translation``, ``residuals``, ``tracking`` (per camera), ``warnings``,
+        ``translation``, ``residuals``, ``tracking`` (per camera), ``clock`` (when
+        camera 1's frame 0 was recorded, UTC and local, and the sunset; `pipeline.clock`),
+        ``patterns`` (the night's flash-pattern figures; `pipeline.patterns`), ``warnings``,
         ``timings_s`` (per unit; ``track_cam<c>`` = the camera's tracking time summed
         over its chunks) and ``parameters``.
     """
@@ -67,6 +69,10 @@ def summarise(records: Mapping[Unit, StageResult], params: ProcessParams) -> dic
         "translation": value("pose", "translation"),
         "residuals": value("pose", "residuals") or {},
         "tracking": tracking,
+        "clock": {k: v for k, v in metrics["clock"].items() if k != "seconds"}
+        if "clock" in metrics
+        else None,
+        "patterns": value("patterns", "night"),
         "warnings": [w for _, result in ordered for w in result.warnings],
         "timings_s": timings,
         "parameters": params.model_dump(mode="json"),

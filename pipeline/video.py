@@ -207,8 +207,18 @@ def _probe_chapter(path: Path, first_frame: int) -> tuple[ChapterInfo, _StreamPr
             first_frame=first_frame,
             codec=stream.codec_context.name,
             first_pts=first_pts,
+            creation_time=_creation_time(container, stream),
         )
     return chapter, _StreamProps(width, height, fps)
+
+
+def _creation_time(container: av.container.InputContainer, stream: av.VideoStream) -> str | None:
+    """The file's ``creation_time`` tag (container first, then the video stream), as written."""
+    for metadata in (container.metadata, stream.metadata):
+        value = metadata.get("creation_time")
+        if value and value.strip():
+            return str(value).strip()
+    return None
 
 
 def _open(path: Path) -> av.container.InputContainer:

@@ -6,6 +6,7 @@ import datetime as dt
 import re
 import uuid
 from typing import Annotated, Any, Literal
+from zoneinfo import ZoneInfo
 
 from pydantic import (
     AfterValidator,
@@ -18,6 +19,7 @@ from pydantic import (
 )
 
 from pipeline.graph import STAGE_NAMES
+from pipeline.night import check_start_time, check_time_zone
 from pipeline.params import MAX_SEPARATION_M
 
 CONTROL_CHARS = re.compile(r"[\x00-\x08\x0b-\x1f\x7f]")
@@ -96,6 +98,24 @@ class NightCreate(Strict):
     )
     height_m: float | None = Field(default=None, ge=0, le=100, description="camera height, metres")
     notes: Text = Field(default="", max_length=5000)
+    time_zone: Line | None = Field(
+        default=None,
+        max_length=64,
+        description="IANA time zone of the site; the cameras' clocks show local time there "
+        "when camera_clock is 'local'",
+        examples=["America/New_York"],
+    )
+    camera_clock: Literal["local", "utc"] = Field(
+        default="local",
+        description="how the videos' creation_time is written: the cameras' local wall-clock "
+        "time (GoPro) or UTC",
+    )
+    start_time: dt.datetime | None = Field(
+        default=None,
+        description="when camera 1's first frame was recorded, ISO 8601 (without an offset: "
+        "local time in time_zone); overrides the videos' creation time",
+    )
+    camera_model: Line | None = Field(default=None, max_length=100, examples=["GoPro Max"])
 
     @field_validator("date")
     @classmethod
@@ -104,6 +124,29 @@ class NightCreate(Strict):
         if not FIRST_DATE <= value <= tomorrow:
             raise ValueError(f"date must be between {FIRST_DATE} and {tomorrow}")
         return value
+
+    @field_validator("time_zone")
+    @classmethod
+    def _known_zone(cls, value: str | None) -> str | None:
+        return None if value is None else check_time_zone(value)
+
+    @field_validator("start_time")
+    @classmethod
+    def _plausible_start(cls, value: dt.datetime | None) -> dt.datetime | None:
+        tomorrow = dt.datetime.now(dt.UTC).date() + dt.timedelta(days=2)
+        if value is not None and not FIRST_DATE <= value.date() <= tomorrow:
+            raise ValueError(f"start_time must be between {FIRST_DATE} and {tomorrow}")
+        return value
+
+    @model_validator(mode="after")
+    def _placeable_start(self) -> NightCreate:
+        check_start_time(self.start_time, self.time_zone)
+        if self.start_time is not None and self.start_time.tzinfo is None:
+            # Wall-clock time at the site: stored as the instant it names (a naive value
+            # would be read back as UTC from the timestamptz column).
+            assert self.time_zone is not None
+            self.start_time = self.start_time.replace(tzinfo=ZoneInfo(self.time_zone))
+        return self
 
 
 class JobBrief(BaseModel):
@@ -125,6 +168,10 @@ class NightOut(BaseModel):
     separation_m: float
     height_m: float | None
     notes: str
+    time_zone: str | None = None
+    camera_clock: str = "local"
+    start_time: dt.datetime | None = None
+    camera_model: str | None = None
     created_at: dt.datetime
     jobs: list[JobBrief] = []
 

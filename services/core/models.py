@@ -121,6 +121,13 @@ class Night(Base):
     separation_m: Mapped[float] = mapped_column(Float)
     height_m: Mapped[float | None] = mapped_column(Float)
     notes: Mapped[str] = mapped_column(Text, default="")
+    #: IANA time zone of the site (and of the cameras' clocks when camera_clock is local).
+    time_zone: Mapped[str | None] = mapped_column(String(64))
+    #: How the videos' creation_time is written: "local" (GoPro) or "utc".
+    camera_clock: Mapped[str] = mapped_column(String(8), default="local", server_default="local")
+    #: When camera 1's frame 0 was recorded, if the team gives it (overrides the videos).
+    start_time: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+    camera_model: Mapped[str | None] = mapped_column(String(100))
     created_at: Mapped[datetime] = _now()
 
     team: Mapped[Team] = relationship()

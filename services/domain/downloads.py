@@ -2,11 +2,14 @@
 
 Pages ask for a link when the user clicks (`POST /jobs/{id}/links`), so a page left
 open for hours never offers an expired one; "download all" is a zip streamed by the
-API (`services.domain.archive`) through a signed link.
+API (`services.domain.archive`) through a signed link: the job's results and report, and
+a ``datapackage.json`` describing them (`pipeline.package`, the builder the CLI's
+``--package`` uses), made from the night's row when the zip is asked for.
 """
 
 from __future__ import annotations
 
+import json
 import re
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
@@ -14,16 +17,16 @@ from pathlib import PurePosixPath
 
 from sqlalchemy.orm import Session
 
-from pipeline.artifacts import CALIBRATION_JSON, CAMERAS, REPORT_DIR, TRAJECTORIES_CSV, flashes_name
+from pipeline.artifacts import CALIBRATION_JSON, DATAPACKAGE_JSON
+from pipeline.package import PackageFile, csv_header, datapackage, is_package_file
 from services.core.models import Artifact, Job
 from services.core.security import sign_payload, verify_payload
 from services.core.settings import Settings
 from services.core.storage import Disposition, Storage
 from services.domain.archive import ZipMember, zip_stream
 from services.domain.errors import Forbidden, NotFound
+from services.domain.nights import night_info
 from services.domain.repositories import jobs
-
-RESULTS = {TRAJECTORIES_CSV, CALIBRATION_JSON, *(flashes_name(c) for c in CAMERAS)}
 
 
 @dataclass(frozen=True)
@@ -38,8 +41,8 @@ class Stream:
 
 
 def is_result(name: str) -> bool:
-    """Whether an artifact is one of the CONTRACT outputs (the rest are intermediates)."""
-    return name in RESULTS or name.startswith(f"{REPORT_DIR}/")
+    """Whether an artifact is a result (CSV, JSON, report); the rest are intermediates."""
+    return is_package_file(name)
 
 
 def _disposition(content_type: str) -> Disposition:
@@ -108,6 +111,29 @@ def result_members(storage: Storage, job: Job) -> list[ZipMember]:
     return [(a.name, _lazy(storage, a.storage_key)) for a in job.artifacts if is_result(a.name)]
 
 
+def package_member(storage: Storage, job: Job) -> ZipMember:
+    """``datapackage.json`` of the job's results, built when its turn in the zip comes."""
+
+    def build() -> Iterator[bytes]:
+        files = []
+        calibration = None
+        for artifact in job.artifacts:
+            if not is_result(artifact.name):
+                continue
+            header: tuple[str, ...] = ()
+            if artifact.name.endswith(".csv"):
+                header = csv_header(next(iter(storage.iter_bytes(artifact.storage_key)), b""))
+            elif artifact.name == CALIBRATION_JSON:
+                calibration = json.loads(storage.read_bytes(artifact.storage_key))
+            files.append(PackageFile(artifact.name, artifact.size, header))
+        package = datapackage(
+            files, night_info(job.night), calibration, job.summary, job.finished_at
+        )
+        yield (json.dumps(package, indent=2) + "\n").encode()
+
+    return DATAPACKAGE_JSON, build()
+
+
 def _lazy(storage: Storage, key: str) -> Iterable[bytes]:
     """The object's chunks, opened only when iterated (when its member is written)."""
     yield from storage.iter_bytes(key)
@@ -127,7 +153,7 @@ def signed_download(settings: Settings, storage: Storage, session: Session, toke
         job = jobs.get(session, payload["archive"])
         if job is None:
             raise NotFound("this job no longer exists")
-        members = result_members(storage, job)
+        members = [*result_members(storage, job), package_member(storage, job)]
         chunks = zip_stream(members, job.finished_at)
         return Stream(chunks, None, payload["name"], "application/zip", "attachment")
     if payload is None or not {"key", "name", "type"} <= payload.keys():

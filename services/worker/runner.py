@@ -18,7 +18,7 @@ import random
 import time
 import uuid
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from tempfile import TemporaryDirectory
 
@@ -31,6 +31,7 @@ from pipeline import graph
 from pipeline.artifacts import PROBE_JSON
 from pipeline.graph import StageResult, Unit
 from pipeline.jsonio import json_safe
+from pipeline.night import NightInfo
 from pipeline.params import ProcessParams
 from pipeline.probe import StereoProbe
 from pipeline.summary import summarise
@@ -39,6 +40,7 @@ from services.core.models import Job, Stage, StageStatus
 from services.core.settings import Settings
 from services.core.storage import Storage, TransientStorageError
 from services.domain import states, workflow
+from services.domain.nights import night_info
 from services.domain.repositories import jobs
 from services.domain.workflow import EnqueueError, Send, job_key, unit_of
 from services.worker.heartbeat import Heartbeat
@@ -83,6 +85,7 @@ class Claim:
     separation_m: float
     height_m: float | None
     inputs: tuple[InputRef, ...]
+    night: NightInfo = field(default_factory=NightInfo)
 
 
 Progress = Callable[[float], None]
@@ -153,6 +156,7 @@ def run_unit(claimed: Claim, workdir: Path, rt: Runtime, progress: Progress) -> 
         params=claimed.params,
         separation_m=claimed.separation_m,
         camera_height_m=claimed.height_m,
+        night=claimed.night,
         videos=videos,
         progress=progress,
     )
@@ -261,6 +265,7 @@ def _claim_row(session: Session, job_id: str, key: str, token: str) -> Claim | s
         separation_m=job.night.separation_m,
         height_m=job.night.height_m,
         inputs=inputs,
+        night=night_info(job.night),
     )
 
 

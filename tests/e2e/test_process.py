@@ -7,9 +7,12 @@ Targets (issue 2): exact delay; rotation error ≤ 0.3°; translation direction 
 
 from __future__ import annotations
 
+import datetime as dt
 import json
+import zipfile
 from pathlib import Path
 
+import frictionless
 import numpy as np
 import pytest
 
@@ -17,18 +20,42 @@ from pipeline import artifacts
 from pipeline.cli import main
 from pipeline.detections import Detections
 from pipeline.evaluate import evaluate_run
-from pipeline.results import read_trajectories
+from pipeline.params import PatternParams
+from pipeline.patterns import night_patterns
+from pipeline.results import FLASH_PATTERN_COLUMNS, read_flash_patterns, read_trajectories
+from pipeline.simulation.truth import GroundTruth
+from tests.pipeline.video_factory import with_creation_time
 
 pytestmark = pytest.mark.slow
 
 CONTRACT_HEADER = "x,y,z,frame,time_s,streak_id,trajectory_id"
 
 
-def run_process(recording, out: Path, *extra: str) -> int:
+def run_process(recording, out: Path, *extra: str, cam1=None) -> int:
     args = ["process", "--quiet", "--separation", str(recording.truth.separation_m)]
-    args += [a for p in recording.cam1 for a in ("--cam1", str(p))]
+    args += [a for p in cam1 or recording.cam1 for a in ("--cam1", str(p))]
     args += [a for p in recording.cam2 for a in ("--cam2", str(p))]
     return main([*args, "--out", str(out), *extra])
+
+
+def true_patterns(truth: GroundTruth) -> dict:
+    """The simulator's flash timing read as the patterns stage reads a run: each true flash
+    a streak, each firefly a trajectory, camera 1's frames."""
+    f = truth.flashes
+    seen = (f.frame1 >= 0) & (f.frame1 < truth.n_frames1)
+    table = {"trajectory_id": f.firefly_id[seen], "streak_id": f.flash_id[seen]}
+    table["frame"] = f.frame1[seen]
+    return night_patterns(table, truth.fps, truth.n_frames1, PatternParams(join_gap_frames=0))[1]
+
+
+def check_flash_timing(out: Path, truth: GroundTruth) -> None:
+    """Median flash duration and inter-flash interval within one frame of the truth."""
+    found = json.loads((out / artifacts.SUMMARY_JSON).read_text())["patterns"]
+    true = true_patterns(truth)
+    for figure in ("flash_duration_s", "ifi_s"):
+        error = abs(found[figure]["median"] - true[figure]["median"])
+        assert error <= 1 / truth.fps + 1e-9, (figure, found[figure], true[figure])
+    assert found["synchronous"] is False  # simulated fireflies flash independently
 
 
 @pytest.mark.parametrize(
@@ -40,17 +67,28 @@ def test_accuracy_with_shipped_classifier(simulated, tmp_path, scenario: str, se
     assert run_process(recording, tmp_path) == 0
     accuracy = evaluate_run(tmp_path, recording.truth)
     assert accuracy.failures() == [], accuracy
+    check_flash_timing(tmp_path, recording.truth)
 
 
 def test_outputs_follow_the_contract(simulated, tmp_path) -> None:
     recording = simulated(scenario="clean", seed=3)
-    assert run_process(recording, tmp_path, "--camera-height", "1.2") == 0
-    header = (tmp_path / "trajectories.csv").read_text().splitlines()[0]
+    # Camera 1's video as a GoPro writes it: local wall-clock time tagged "Z" (EDT = UTC-4).
+    cam1 = [
+        with_creation_time(recording.cam1[0], tmp_path / "GS010001.mp4", "2026-06-12T21:30:05Z")
+    ]
+    night = ["--time-zone", "America/New_York", "--latitude", "35.65", "--longitude", "-83.58"]
+    night += ["--site", "Elkmont", "--date", "2026-06-12", "--camera-model", "GoPro Max"]
+    out = tmp_path / "out"
+    assert (
+        run_process(recording, out, "--camera-height", "1.2", *night, "--package", cam1=cam1) == 0
+    )
+    check_real_time_and_package(out)
+    header = (out / "trajectories.csv").read_text().splitlines()[0]
     assert header.startswith(CONTRACT_HEADER)
     for camera in (1, 2):
-        head = (tmp_path / f"flashes_cam{camera}.csv").read_text().splitlines()[0]
+        head = (out / f"flashes_cam{camera}.csv").read_text().splitlines()[0]
         assert head.startswith("frame,x,y")
-    calibration = json.loads((tmp_path / "calibration.json").read_text())
+    calibration = json.loads((out / "calibration.json").read_text())
     for key in (
         "delay_frames",
         "delay_confidence",
@@ -68,17 +106,21 @@ def test_outputs_follow_the_contract(simulated, tmp_path) -> None:
     assert np.linalg.norm(calibration["translation"]) == pytest.approx(1.0)
     assert calibration["width"] == 2 * calibration["height"] == 640
     assert calibration["camera_height_m"] == 1.2
-    table = read_trajectories(tmp_path / "trajectories.csv")
+    table = read_trajectories(out / "trajectories.csv")
     np.testing.assert_allclose(table["time_s"], table["frame"] / calibration["fps"], atol=1e-4)
-    report = sorted(p.name for p in (tmp_path / "report").iterdir())
+    report = sorted(p.name for p in (out / "report").iterdir())
     assert report == [
         "calibration_residuals.png",
         "counts.png",
         "delay.png",
+        "flash_durations.png",
+        "flashes_per_minute.png",
+        "height_profile.png",
+        "interflash_intervals.png",
         "summary.json",
         "trajectories_3d.png",
     ]
-    summary = json.loads((tmp_path / artifacts.SUMMARY_JSON).read_text())
+    summary = json.loads((out / artifacts.SUMMARY_JSON).read_text())
     assert summary["counts"]["points"] == len(table["frame"])
     assert {"sync", "pose", "triangulate", "link", "track_cam1"} <= set(summary["timings_s"])
 
@@ -156,3 +198,30 @@ def test_background_subtraction_baseline_floods_on_foliage(simulated, tmp_path) 
     det_cnn = Detections.from_csv(with_cnn / "flashes_cam1.csv")
     det_all = Detections.from_csv(without / "flashes_cam1.csv")
     assert len(det_all) > 2 * len(det_cnn)
+
+
+def check_real_time_and_package(out: Path) -> None:
+    """timestamp_utc from the video's creation time; the data package validates."""
+    start = dt.datetime(2026, 6, 13, 1, 30, 5, tzinfo=dt.UTC)
+    header = (out / "trajectories.csv").read_text().splitlines()[0]
+    assert header == f"{CONTRACT_HEADER},gap_m,range_m,timestamp_utc,minutes_after_sunset"
+    table = read_trajectories(out / "trajectories.csv")
+    expected = [start + dt.timedelta(seconds=t) for t in table["frame"] / 30.0]
+    got = [dt.datetime.fromisoformat(stamp) for stamp in table["timestamp_utc"]]
+    assert max(abs((a - b).total_seconds()) for a, b in zip(got, expected, strict=True)) < 1e-3
+    assert np.all((table["minutes_after_sunset"] > 30) & (table["minutes_after_sunset"] < 50))
+    patterns = read_flash_patterns(out / "flash_patterns.csv")
+    assert tuple(patterns) == FLASH_PATTERN_COLUMNS
+    assert sorted(patterns["trajectory_id"]) == sorted(set(table["trajectory_id"]))
+    assert np.all(patterns["mean_height_m"] > 0)  # above the ground: camera height known
+    summary = json.loads((out / artifacts.SUMMARY_JSON).read_text())
+    assert summary["clock"]["start_utc"] == "2026-06-13T01:30:05.000+00:00"
+    report = frictionless.validate(out / "datapackage.json")
+    assert report.valid, report.flatten(["rowNumber", "fieldName", "type", "note"])
+    package = json.loads((out / "datapackage.json").read_text())
+    assert package["rig"]["camera_model"] == "GoPro Max"
+    assert package["night"]["clock"]["start_utc"] == summary["clock"]["start_utc"]
+    with zipfile.ZipFile(out / "firefly3d-Elkmont-2026-06-12.zip") as archive:
+        assert {"datapackage.json", "trajectories.csv", "report/summary.json"} <= set(
+            archive.namelist()
+        )

@@ -41,7 +41,9 @@ def test_plan_leaves_chunks_until_the_probe_is_known() -> None:
         "sync",
         "pose",
         "triangulate",
+        "clock",
         "link",
+        "patterns",
         "report",
     ]
     chunks = [u for u in graph.plan(PROBE, PARAMS) if u.stage == "track"]

@@ -226,3 +226,16 @@ def truncate(path: str | Path, fraction: float) -> None:
     """Cut a file to `fraction` of its size, like an interrupted upload."""
     data = Path(path).read_bytes()
     Path(path).write_bytes(data[: int(len(data) * fraction)])
+
+
+def with_creation_time(source: str | Path, target: str | Path, creation_time: str) -> Path:
+    """A copy of a video (packets as they are) whose container says when it was created."""
+    target = Path(target)
+    with av.open(str(source)) as src, av.open(str(target), "w") as dst:
+        dst.metadata["creation_time"] = creation_time
+        stream = dst.add_stream_from_template(src.streams.video[0])
+        for packet in src.demux(src.streams.video[0]):
+            if packet.dts is not None:
+                packet.stream = stream
+                dst.mux(packet)
+    return target

@@ -302,6 +302,9 @@ def reference(recording: dict[int, list[Path]], tmp_path_factory: pytest.TempPat
     args += [a for p in recording[1] for a in ("--cam1", str(p))]
     args += [a for p in recording[2] for a in ("--cam2", str(p))]
     args += ["--separation", str(NIGHT["separation_m"]), "--camera-height", str(NIGHT["height_m"])]
+    # The night's clock as the service's night row gives it to the workers.
+    for option in ("latitude", "longitude", "time_zone", "start_time"):
+        args += [f"--{option.replace('_', '-')}", str(NIGHT[option])]
     args += ["--params", str(params), "--out", str(tmp / "out")]
     result = subprocess.run(args, capture_output=True, text=True, cwd=ROOT)
     assert result.returncode == 0, result.stderr

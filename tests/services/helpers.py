@@ -29,6 +29,10 @@ NIGHT = {
     "separation_m": 1.5,
     "height_m": 1.2,
     "notes": "simulated",
+    # Real time: camera 1 started at 21:30 local time, 40 min after sunset there.
+    "time_zone": "America/New_York",
+    "start_time": "2026-06-12T21:30:00",
+    "camera_model": "GoPro Max",
 }
 FINISHED = ("succeeded", "failed", "cancelled")
 

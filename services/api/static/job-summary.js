@@ -8,6 +8,31 @@ const FIELDS = [
   ["counts.trajectories", "Trajectories"],
   ["counts.streaks", "Streaks"],
   ["counts.points", "Triangulated flashes"],
+  ["clock.start_local", "Recording started (local time)"],
+  ["clock.start_utc", "Recording started (UTC)"],
+  ["clock.start_minutes_after_sunset", "Recording started after sunset", "min"],
+  ["clock.sunset_utc", "Sunset (UTC)"],
+  ["clock.source", "Time of night from"],
+  ["clock.time_zone", "Time zone of the site"],
+  ["patterns.flash_duration_s.median", "Flash duration, median", "s"],
+  ["patterns.flash_duration_s.q25", "Flash duration, 1st quartile", "s"],
+  ["patterns.flash_duration_s.q75", "Flash duration, 3rd quartile", "s"],
+  ["patterns.ifi_s.median", "Inter-flash interval, median", "s"],
+  ["patterns.ifi_s.q25", "Inter-flash interval, 1st quartile", "s"],
+  ["patterns.ifi_s.q75", "Inter-flash interval, 3rd quartile", "s"],
+  ["patterns.ifi_s.mode", "Inter-flash interval, histogram peak", "s"],
+  ["patterns.synchronous", "Synchronous flashing"],
+  ["patterns.period_s", "Synchrony test: period of the strongest joint peak", "s"],
+  ["patterns.strength", "Synchrony test: strength (0 = independent)"],
+  ["patterns.z", "Synchrony test: significance", "σ"],
+  ["patterns.count_period_s", "Period of the flash-count series", "s"],
+  ["patterns.count_autocorrelation", "Flash-count autocorrelation at that period"],
+  ["patterns.flashes_per_train", "Flashes per train, median"],
+  ["patterns.n_trains", "Flash trains"],
+  ["patterns.n_flashes", "Flashes (streaks)"],
+  ["patterns.n_trajectories", "Trajectories with flashes"],
+  ["patterns.flash_duration_s.n", "Flashes timed (not cut by the recording's ends)"],
+  ["patterns.ifi_s.n", "Inter-flash intervals"],
   ["counts.flashes_cam{c}", "Flashes accepted, camera {c}"],
   ["counts.candidates_cam{c}", "Candidates tracked, camera {c}"],
   ["counts.calibration_pairs", "Calibration pairs (one flash per camera)"],
@@ -63,6 +88,8 @@ function formatValue(value, unit, scale) {
   if (Array.isArray(value)) {
     return value.map((v) => (Array.isArray(v) ? `[${v.map(rounded).join(", ")}]` : rounded(v))).join(", ");
   }
+  if (typeof value === "boolean") return value ? "yes" : "no";
+  if (typeof value === "string") return value;
   if (typeof value !== "number") return JSON.stringify(value);
   const scaled = value * scale;
   const text = Number.isInteger(scaled) ? scaled.toLocaleString() : String(+scaled.toPrecision(4));

@@ -50,11 +50,23 @@ function row(entry) {
 
 function nightBody() {
   const number = (id) => ($(id).value === "" ? null : Number($(id).value));
+  const text = (id) => ($(id).value.trim() === "" ? null : $(id).value.trim());
   return {
     site: $("site").value, date: $("date").value, latitude: number("latitude"),
     longitude: number("longitude"), separation_m: number("separation"),
     height_m: number("height"), notes: $("notes").value,
+    time_zone: text("time-zone"), camera_clock: $("camera-clock").value,
+    start_time: text("start-time"), camera_model: text("camera-model"),
   };
+}
+
+// Time zone names for the site's field (the browser's own is only a hint, not a default:
+// the site's zone is what matters, and an unknown zone is better than a wrong one).
+function offerTimeZones() {
+  const zones = Intl.supportedValuesOf ? Intl.supportedValuesOf("timeZone") : [];
+  $("time-zones").replaceChildren(...zones.map((zone) => el("option", { value: zone })));
+  const here = Intl.DateTimeFormat().resolvedOptions().timeZone;
+  if (here) $("time-zone").placeholder = `e.g. ${here} (this computer's)`;
 }
 
 function paramOverrides() {
@@ -134,12 +146,14 @@ function offerResume() {
   const saved = JSON.parse(localStorage.getItem(RESUME_KEY) || "null");
   if (!saved?.night) return;
   const fields = { site: "site", date: "date", latitude: "latitude", longitude: "longitude",
-    separation_m: "separation", height_m: "height", notes: "notes" };
+    separation_m: "separation", height_m: "height", notes: "notes", time_zone: "time-zone",
+    camera_clock: "camera-clock", start_time: "start-time", camera_model: "camera-model" };
   for (const [key, id] of Object.entries(fields)) if (saved.night[key] != null) $(id).value = saved.night[key];
   $("progress").hidden = false;
   status(`An upload of ${saved.files.length} files was interrupted: select the same files and ` +
     "press the button to continue where it stopped.");
 }
 
+offerTimeZones();
 offerResume();
 $("upload-form").addEventListener("submit", start);

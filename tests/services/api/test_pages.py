@@ -12,10 +12,12 @@ import zipfile
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 from playwright.sync_api import Browser, Page, Route, sync_playwright
 
 from pipeline.artifacts import SUMMARY_JSON, TRAJECTORIES_CSV
+from pipeline.results import read_trajectories
 from services.domain.access import authenticate
 from tests.services.conftest import LINK_LIFETIME_S, LiveServer, Service
 from tests.services.helpers import NIGHT, TEST_PARAMS, auth, make_team
@@ -29,7 +31,25 @@ CHROMIUM_FLAGS = [
     "--disable-component-update",
     "--no-first-run",
     "--disable-sync",
+    # WebGL (the job page's 3D view) on the CPU: Chromium's SwiftShader, allowed explicitly
+    # since Chromium no longer falls back to it by itself.
+    "--enable-unsafe-swiftshader",
 ]
+#: Pixels of the 3D view that differ from its background (#0b1020), counted in the page.
+LIT_PIXELS = """() => {
+  const gl = document.querySelector('#viewer-canvas');
+  const copy = document.createElement('canvas');
+  copy.width = gl.width; copy.height = gl.height;
+  const ctx = copy.getContext('2d');
+  ctx.drawImage(gl, 0, 0);
+  const data = ctx.getImageData(0, 0, copy.width, copy.height).data;
+  let lit = 0;
+  for (let i = 0; i < data.length; i += 4) {
+    const off = Math.abs(data[i] - 11) + Math.abs(data[i + 1] - 16) + Math.abs(data[i + 2] - 32);
+    if (off > 60) lit++;
+  }
+  return lit;
+}"""
 #: Records every state and progress value the upload table shows, before the page leaves.
 WATCH_UPLOADS = """
 new MutationObserver(() => {
@@ -66,6 +86,11 @@ def upload_through_the_form(
     page.fill("#date", NIGHT["date"])
     page.fill("#separation", str(NIGHT["separation_m"]))
     page.fill("#height", str(NIGHT["height_m"]))
+    page.fill("#latitude", str(NIGHT["latitude"]))
+    page.fill("#longitude", str(NIGHT["longitude"]))
+    page.fill("#time-zone", NIGHT["time_zone"])
+    page.fill("#start-time", NIGHT["start_time"])
+    page.fill("#camera-model", NIGHT["camera_model"])
     page.set_input_files("#cam1-files", [str(p) for p in recording[1]])
     page.set_input_files("#cam2-files", [str(p) for p in reversed(recording[2])])  # sorted by name
     assert page.locator("#cam2-list li").all_inner_texts()[0].startswith(recording[2][0].name)
@@ -89,7 +114,7 @@ def team_name(service: Service, token: str) -> str:
 def check_job_page(page: Page, team: str, reference: Path) -> None:
     page.wait_for_selector("#job-status.status-succeeded", timeout=240_000)
     rows = page.locator("#stages tbody tr")
-    assert rows.count() == 16  # 8 stages + 4 tracking chunks per camera
+    assert rows.count() == 18  # 10 stages + 4 tracking chunks per camera
     assert set(page.locator("#stages tbody tr td:nth-child(2)").all_inner_texts()) == {"succeeded"}
     assert page.inner_text("#job-title") == f"{NIGHT['site']}, {NIGHT['date']} — {team}"
 
@@ -124,6 +149,46 @@ def check_job_page(page: Page, team: str, reference: Path) -> None:
     with zipfile.ZipFile(archive.value.path()) as results:
         assert results.read(TRAJECTORIES_CSV) == (reference / TRAJECTORIES_CSV).read_bytes()
         assert SUMMARY_JSON in results.namelist()
+        package = json.loads(results.read("datapackage.json"))
+    assert package["night"]["site"] == NIGHT["site"]
+    assert {r["path"] for r in package["resources"]} >= {TRAJECTORIES_CSV, "flash_patterns.csv"}
+    check_viewer(page, reference)
+
+
+def set_range(page: Page, selector: str, value: float) -> float:
+    """Move a slider as a person would (it snaps to its step); returns where it stopped."""
+    return float(
+        page.eval_on_selector(
+            selector,
+            "(input, value) => { input.value = value; input.dispatchEvent(new Event('input'));"
+            " return input.value; }",
+            str(value),
+        )
+    )
+
+
+def check_viewer(page: Page, reference: Path) -> None:
+    """The 3D view draws the whole night, then only the flashes of the chosen window."""
+    page.wait_for_selector("#viewer:not([hidden])")
+    assert page.is_hidden("#viewer-error"), page.inner_text("#viewer-error")
+    page.wait_for_function("Number(document.querySelector('#viewer-canvas').dataset.renders) > 0")
+    times = read_trajectories(reference / TRAJECTORIES_CSV)["time_s"]
+    canvas = page.locator("#viewer-canvas")
+    assert int(canvas.get_attribute("data-visible") or -1) == len(times)
+    whole = page.evaluate(LIT_PIXELS)
+    assert whole > 500  # points, trajectory lines, cameras and ground drawn
+    page.uncheck("#viewer-trails")
+    set_range(page, "#viewer-width", 2)
+    shown = []
+    for end in (np.quantile(times, 0.3), np.quantile(times, 0.8)):
+        end = set_range(page, "#viewer-time", end)
+        expected = int(np.count_nonzero((times >= end - 2 - 1e-6) & (times <= end + 1e-6)))
+        assert int(canvas.get_attribute("data-visible") or -1) == expected
+        shown.append((expected, page.evaluate(LIT_PIXELS)))
+    assert page.is_checked("#viewer-whole") is False
+    (n1, lit1), (n2, lit2) = shown
+    assert 0 < n1 < len(times) and 0 < n2 < len(times)
+    assert lit1 < whole and lit2 < whole and lit1 != lit2  # the slider changed the picture
 
 
 @pytest.mark.parametrize("backend", ["s3", "local"])

@@ -42,6 +42,9 @@ def night_id(api_service: Service, team: str) -> str:
         ({"site": "a\x00b"}, "site: Value error, must not contain control characters"),
         ({"notes": "x" * 5001}, "notes: String should have at most 5000 characters"),
         ({"camera_count": 2}, "camera_count: Extra inputs are not permitted"),
+        ({"time_zone": "Mars/Olympus"}, "time_zone: Value error, unknown time zone 'Mars/Olympus'"),
+        ({"time_zone": None}, "start time 2026-06-12T21:30:00 has no UTC offset"),
+        ({"camera_clock": "gps"}, "camera_clock: Input should be 'local' or 'utc'"),
     ],
 )
 def test_bad_night(api_service: Service, team: str, changes: dict, expected: str) -> None:

@@ -101,7 +101,7 @@ def test_stages_run_in_dependency_order(
     broker = Broker()
     call(sessions, workflow.submit, storage, broker, job_id)
     assert broker.take() == ["probe"]
-    assert Counter(statuses(sessions, job_id).values()) == {"queued": 1, "pending": 7}
+    assert Counter(statuses(sessions, job_id).values()) == {"queued": 1, "pending": 9}
 
     finish(sessions, job_id, ["probe"])
     call(sessions, workflow.advance, storage, broker, job_id)
@@ -110,9 +110,9 @@ def test_stages_run_in_dependency_order(
         for c in (1, 2)
         for a, b in ((0, 180), (180, 360), (360, 540), (540, 600))
     ]
-    assert sorted(broker.take()) == sorted(chunks)
+    assert sorted(broker.take()) == sorted([*chunks, "clock"])  # the clock needs the probe only
 
-    finish(sessions, job_id, chunks[:4])  # camera 1 done: only its merge may start
+    finish(sessions, job_id, [*chunks[:4], "clock"])  # camera 1 done: only its merge may start
     call(sessions, workflow.advance, storage, broker, job_id)
     assert broker.take() == ["merge/cam1"]
     finish(sessions, job_id, [*chunks[4:], "merge/cam1"])
@@ -124,7 +124,8 @@ def test_stages_run_in_dependency_order(
         ("sync", "pose"),
         ("pose", "triangulate"),
         ("triangulate", "link"),
-        ("link", "report"),
+        ("link", "patterns"),
+        ("patterns", "report"),
     ]:
         finish(sessions, job_id, [previous])
         call(sessions, workflow.advance, storage, broker, job_id)
@@ -232,15 +233,17 @@ def test_rerun_reuses_earlier_stages(
 
     broker = Broker()
     assert call(sessions, workflow.rerun, storage, broker, job_id) == "pose"
-    assert broker.take() == ["pose"]
+    # The clock sits after triangulate in the graph (re-running from it redoes only what
+    # reads it) and waits for the probe alone: reset with the later stages, it runs at once.
+    assert broker.take() == ["pose", "clock"]
     with sessions() as session:
         job = session.get_one(Job, job_id)
         after = {s.key: (s.attempt, s.status) for s in job.stages}
         assert job.status == "queued" and job.error is None
         assert [a.name for a in job.artifacts] == ["work/sync.json"]
     for key, (attempt, status) in before.items():
-        if key in ("pose", "triangulate", "link", "report"):
-            assert after[key] == (attempt, "queued" if key == "pose" else "pending")
+        if key in ("pose", "triangulate", "clock", "link", "patterns", "report"):
+            assert after[key] == (attempt, "queued" if key in ("pose", "clock") else "pending")
         else:
             assert after[key] == (attempt, status) == (1, "succeeded")
     assert storage.size(kept) is not None and storage.size(stale) is None
@@ -265,7 +268,8 @@ def test_rerun_from_track_plans_chunks_again(
     new_params = {**PARAMS, "chunk_s": 12}
     assert call(sessions, workflow.rerun, storage, broker, job_id, "track", new_params) == "track"
     assert sorted(broker.take()) == [
-        f"track/cam{c}/{a:08d}-{b:08d}" for c in (1, 2) for a, b in ((0, 360), (360, 600))
+        "clock",
+        *(f"track/cam{c}/{a:08d}-{b:08d}" for c in (1, 2) for a, b in ((0, 360), (360, 600))),
     ]
     with sessions() as session:
         job = session.get_one(Job, job_id)

@@ -7,7 +7,13 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.artifacts import CALIBRATION_JSON, SUMMARY_JSON, TRAJECTORIES_CSV, flashes_name
+from pipeline.artifacts import (
+    CALIBRATION_JSON,
+    FLASH_PATTERNS_CSV,
+    SUMMARY_JSON,
+    TRAJECTORIES_CSV,
+    flashes_name,
+)
 from tests.services.conftest import Service, WorkerProcess
 from tests.services.helpers import (
     auth,
@@ -21,7 +27,13 @@ from tests.services.helpers import (
 
 pytestmark = pytest.mark.slow
 TIMES = ("seconds", "fps")
-COMPARED = (TRAJECTORIES_CSV, CALIBRATION_JSON, flashes_name(1), flashes_name(2))
+COMPARED = (
+    TRAJECTORIES_CSV,
+    FLASH_PATTERNS_CSV,
+    CALIBRATION_JSON,
+    flashes_name(1),
+    flashes_name(2),
+)
 
 
 def run_job(service: Service, recording: dict[int, list[Path]]) -> tuple[str, dict]:
@@ -54,9 +66,17 @@ def check_same_graph_and_summary(service: Service, token: str, job: dict, refere
         p.relative_to(reference).as_posix()
         for p in [*reference.glob("work/metrics/*.json"), *reference.glob("work/tracking/*/*.json")]
     }
-    assert by_service == by_cli and len(by_cli) == 16  # probe, 8 chunks, 2 merges, 5 more
+    assert by_service == by_cli and len(by_cli) == 18  # probe, 8 chunks, 2 merges, 7 more
     cli_summary = json.loads((reference / SUMMARY_JSON).read_text())
-    for key in ("counts", "delay_frames", "delay_confidence", "rotation", "translation"):
+    for key in (
+        "counts",
+        "delay_frames",
+        "delay_confidence",
+        "rotation",
+        "translation",
+        "clock",
+        "patterns",
+    ):
         assert job["summary"][key] == cli_summary[key], key
     for camera in ("cam1", "cam2"):
         stats = {k: v for k, v in job["summary"]["tracking"][camera].items() if k not in TIMES}
