@@ -228,7 +228,9 @@ def import_detections(
     """
     for camera, found in detections.items():
         ordered = found.sorted()
-        ordered.to_npz(workdir / CANDIDATES_NPZ.format(camera=camera))
+        path = workdir / CANDIDATES_NPZ.format(camera=camera)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        ordered.to_npz(path)
         Evidence.imported(ordered, confident_snr).save(workdir / EVIDENCE_NPZ.format(camera=camera))
 
 
