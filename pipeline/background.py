@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pipeline.chunking import block_grid, box_length
-from pipeline.noise import TileNoise
+from pipeline.noise import SAMPLE_EVERY, TileNoise
 from pipeline.params import TrackingParams
 
 
@@ -146,4 +146,4 @@ class Lanes:
                 yield self._lanes[j], j == current
 
     def _new_lane(self, background: BackgroundModel) -> Lane:
-        return Lane(background, TileNoise(self._noise_shape, self._window))
+        return Lane(background, TileNoise(self._noise_shape, -(-self._window // SAMPLE_EVERY)))

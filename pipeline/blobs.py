@@ -28,7 +28,7 @@ class Blobs:
     Attributes
     ----------
     x, y : float64
-        Foreground-weighted centroid in pixels (``x`` wrapped into ``[0, W)``).
+        Centroid in pixels (``x`` wrapped into ``[0, W)``; `centroid`).
     area : intp
         Pixels in the blob.
     peak : float64
@@ -96,20 +96,14 @@ def label(idx: NDArray[np.intp], width: int) -> NDArray[np.intp]:
     return labels.astype(np.intp)
 
 
-def _neighbours(
-    idx: NDArray[np.intp], width: int, dr: int, dc: int
-) -> tuple[NDArray[np.intp], NDArray[np.bool_]]:
-    """Position in `idx` of each pixel's neighbour at offset (dr, dc), and whether it is there."""
-    rows, cols = np.divmod(idx, width)
-    neighbour = (rows + dr) * width + (cols + dc) % width
-    pos = np.minimum(np.searchsorted(idx, neighbour), len(idx) - 1)
-    return pos, idx[pos] == neighbour
-
-
 def local_maxima(
-    idx: NDArray[np.intp], values: NDArray[np.float64], width: int, radius: int
+    idx: NDArray[np.intp],
+    values: NDArray[np.float64],
+    width: int,
+    radius: int,
+    candidates: NDArray[np.bool_],
 ) -> NDArray[np.bool_]:
-    """Pixels whose value is the largest within `radius` (Chebyshev) among the pixels given.
+    """Which `candidates` hold the largest value within `radius` (Chebyshev) of the pixels.
 
     Ties go to the first pixel in raster order, so a plateau yields one maximum.
 
@@ -123,18 +117,26 @@ def local_maxima(
         Image width ``W``.
     radius : int
         Half side of the window, pixels.
+    candidates : ndarray of bool, shape (N,)
+        The pixels to test (e.g. those above a seed level); only they can be maxima.
     """
-    peak = np.ones(len(idx), bool)
+    tested = np.flatnonzero(candidates)
+    rows, cols = np.divmod(idx[tested], width)
+    mine = values[tested]
+    peak = np.ones(len(tested), bool)
     for dr in range(-radius, radius + 1):
         for dc in range(-radius, radius + 1):
             if dr == 0 and dc == 0:
                 continue
-            pos, present = _neighbours(idx, width, dr, dc)
-            before = (dr, dc) < (0, 0)  # the neighbour comes first in raster order
+            neighbour = (rows + dr) * width + (cols + dc) % width
+            pos = np.minimum(np.searchsorted(idx, neighbour), len(idx) - 1)
+            present = idx[pos] == neighbour
             other = values[pos]
-            beaten = present & ((other > values) | ((other == values) & before))
-            peak &= ~beaten
-    return peak
+            before = (dr, dc) < (0, 0)  # the neighbour comes first in raster order
+            peak &= ~(present & ((other > mine) | ((other == mine) & before)))
+    out = np.zeros(len(idx), bool)
+    out[tested[peak]] = True
+    return out
 
 
 def split_at_peaks(
@@ -145,19 +147,25 @@ def split_at_peaks(
     Pixels of blobs without a peak get -1. New labels ``0 .. n_peaks − 1`` follow the
     raster order of the peaks; a blob with one peak keeps all its pixels.
     """
-    out = np.full(len(idx), -1, np.intp)
     peak_rows = np.flatnonzero(peaks)
-    if len(peak_rows) == 0:
-        return out
-    rows, cols = np.divmod(idx, width)
-    height = int(rows.max()) + 1
-    # Blob label as a third coordinate, far apart: a pixel only finds its own blob's peaks.
-    spread = float(2 * (height + width))
-    points = np.column_stack([rows, cols, labels * spread]).astype(np.float64)
-    tree = cKDTree(points[peak_rows], boxsize=[2.0 * spread, width, (labels.max() + 2) * spread])
-    distance, nearest = tree.query(points, k=1)
-    mine = distance < spread / 2
-    out[mine] = nearest[mine]
+    n_blobs = int(labels.max()) + 1 if len(labels) else 0
+    peaks_in_blob = np.bincount(labels[peak_rows], minlength=n_blobs)
+    # Blobs with one peak keep their pixels; only the others need a nearest-peak search.
+    new_label = np.full(n_blobs, -1, np.intp)
+    new_label[labels[peak_rows]] = np.arange(len(peak_rows))
+    out = np.where(peaks_in_blob[labels] == 1, new_label[labels], -1)
+    shared = np.flatnonzero(peaks_in_blob[labels] > 1)
+    if len(shared):
+        rows, cols = np.divmod(idx, width)
+        height = int(rows.max()) + 1
+        # Blob label as a third coordinate, far apart: pixels find their own blob's peaks.
+        spread = float(2 * (height + width))
+        points = np.column_stack([rows, cols, labels * spread]).astype(np.float64)
+        box = [2.0 * spread, width, (n_blobs + 1) * spread]
+        contested = peak_rows[peaks_in_blob[labels[peak_rows]] > 1]
+        tree = cKDTree(points[contested], boxsize=box)
+        _, nearest = tree.query(points[shared], k=1)
+        out[shared] = np.searchsorted(peak_rows, contested[nearest])
     return out
 
 
@@ -227,79 +235,49 @@ def centroid(
 def measure(
     idx: NDArray[np.intp],
     labels: NDArray[np.intp],
-    foreground: NDArray[np.float32],
+    foreground: NDArray[np.floating],
     luma: NDArray[np.uint8],
     snr: NDArray[np.float64],
-    ring_radius: int,
+    x: NDArray[np.float64],
+    y: NDArray[np.float64],
 ) -> Blobs:
-    """Measure labelled blobs of one frame.
-
-    The centroid weights the clipped foreground over the blob dilated by `ring_radius`
-    pixels: the thresholded pixels alone are an asymmetric cut of the spot and bias
-    the centroid toward the nearest pixel centre (by up to 0.23 px for a σ = 1 px spot;
-    under 0.06 px with a one-pixel ring).
+    """Measure labelled blobs of one frame at full resolution.
 
     Parameters
     ----------
     idx : ndarray of int, shape (N,)
         Ascending flat indices ``v · W + u`` of the blobs' pixels.
     labels : ndarray of int, shape (N,)
-        Their blob labels (`label`).
-    foreground : ndarray of float32, shape (H, W)
-        Frame minus background, grey levels.
+        Their blob labels ``0 .. n − 1``.
+    foreground : ndarray of float, shape (N,)
+        Frame minus background at those pixels, grey levels.
     luma : ndarray of uint8, shape (H, W)
         The frame's luminance, for the brightest pixel.
-    snr : ndarray of float, shape (n_blobs,)
+    snr : ndarray of float, shape (n,)
         Each blob's largest filtered response in units of σ (passed through).
-    ring_radius : int
-        Dilation of the centroid window around each blob, in pixels.
+    x, y : ndarray of float, shape (n,)
+        Each blob's centroid (`centroid`), pixels (passed through).
 
     Returns
     -------
     Blobs
-        One row per label, in label order.
+        One row per label, in label order; ``peak`` is the largest foreground (clipped
+        at 0), ``peak_x``/``peak_y`` the brightest luminance pixel (ties: the first in
+        raster order), ``area`` the pixel count.
     """
     if len(idx) == 0:
         return Blobs.empty()
-    height, width = luma.shape
+    width = luma.shape[1]
     rows, cols = np.divmod(idx, width)
-    values = np.maximum(foreground[rows, cols].astype(np.float64), 0.0)
+    values = np.maximum(np.asarray(foreground, np.float64), 0.0)
     order = np.lexsort((idx, -luma[rows, cols].astype(np.int16), labels))
     starts = np.flatnonzero(np.r_[True, np.diff(labels[order]) != 0])
-    peak_x, peak_y = cols[order[starts]], rows[order[starts]]
-    peak = np.maximum.reduceat(values[order], starts)
-    area = np.bincount(labels)
-
-    ring, ring_labels = _ring(idx, labels, width, height, ring_radius)
-    ring_rows, ring_cols = np.divmod(ring, width)
-    all_labels = np.concatenate([labels, ring_labels])
-    weight = np.concatenate([values, np.maximum(foreground[ring_rows, ring_cols], 0.0)])
-    all_rows = np.concatenate([rows, ring_rows])
-    all_cols = np.concatenate([cols, ring_cols])
-    # Offsets from the brightest pixel, wrapped, so a blob across the seam stays whole.
-    du = (all_cols - peak_x[all_labels] + width // 2) % width - width // 2
-    # A blob of zero foreground (possible only at the noise floor) keeps its peak pixel.
-    total = np.maximum(np.bincount(all_labels, weights=weight), 1e-12)
-    x = np.mod(peak_x + np.bincount(all_labels, weights=weight * du) / total, width)
-    x[x >= width] -= width  # mod can round a tiny negative up to exactly W
-    y = np.bincount(all_labels, weights=weight * all_rows) / total
-    y = np.where(total > 1e-12, y, peak_y)
-    return Blobs(x=x, y=y, area=area, peak=peak, peak_x=peak_x, peak_y=peak_y, snr=snr)
-
-
-def _ring(
-    idx: NDArray[np.intp], labels: NDArray[np.intp], width: int, height: int, radius: int
-) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
-    """Pixels within `radius` (chessboard distance) of the blobs but not in them, each
-    with the label of one blob it touches."""
-    rows, cols = np.divmod(idx, width)
-    offsets = np.arange(-radius, radius + 1)
-    dr, dc = (g.ravel()[None, :] for g in np.meshgrid(offsets, offsets, indexing="ij"))
-    nr = rows[:, None] + dr
-    inside = (nr >= 0) & (nr < height)
-    neighbour = (nr * width + (cols[:, None] + dc) % width)[inside]
-    neighbour_labels = np.broadcast_to(labels[:, None], nr.shape)[inside]
-    pos = np.minimum(np.searchsorted(idx, neighbour), len(idx) - 1)
-    outside = idx[pos] != neighbour
-    ring, first = np.unique(neighbour[outside], return_index=True)
-    return ring, neighbour_labels[outside][first]
+    return Blobs(
+        x=x,
+        y=y,
+        area=np.bincount(labels),
+        peak=np.maximum.reduceat(values[order], starts),
+        peak_x=cols[order[starts]],
+        peak_y=rows[order[starts]],
+        snr=snr,
+    )

@@ -16,11 +16,12 @@ def frames_read(start: int, stop: int, fps: float, params: TrackingParams) -> tu
     """Global frame range ``[first, stop)`` that tracking ``[start, stop)`` decodes.
 
     ``first`` is where the background model's warm-up begins: the start of the EWMA
-    block's warm-up, or ``2L`` frames before ``start`` for the box mean (``L`` for the
-    mean, ``L`` more for the noise window measured against it).
+    block's warm-up, or ``2L + 2`` frames before ``start`` for the box mean (``L`` for
+    the mean, ``L`` more for the noise window measured against it, sampled every other
+    frame).
     """
     if params.background == "box":
-        return max(0, start - 2 * box_length(fps, params)), stop
+        return max(0, start - 2 * box_length(fps, params) - 2), stop
     block, warmup = block_grid(fps, params)
     return max(0, (start // block) * block - warmup), stop
 

@@ -4,9 +4,10 @@ A distant firefly is a point blurred by the lens to a spot of a pixel or two; th
 filter that maximises its signal-to-noise ratio in white noise is the spot itself, a
 Gaussian. Filtering with ``σ = 1`` px raises the SNR of a ``σ = 1`` px spot by about
 1.8 over its brightest pixel, and suppresses single-pixel grain and compression
-speckle. At high resolution the foreground is first averaged over ``b × b`` bins
-(`binning`): spots there are several pixels wide, so little signal is lost, and the
-filter, the noise estimate and the labelling all run on ``b²`` times fewer pixels.
+speckle. At high resolution the luminance is first averaged over ``b × b`` bins (`binning`,
+`bin_image`): spots there are several pixels wide, so little signal is lost, and the
+background, the filter, the noise estimate and the labelling all run on ``b²`` times
+fewer pixels.
 
 Columns wrap around the 360° seam; the pole rows are replicated.
 """
@@ -37,34 +38,44 @@ def binning(width: int, requested: int | None = None) -> int:
     return b
 
 
-def matched_filter(
-    foreground: NDArray[np.float32], sigma_px: float, bin_px: int = 1
-) -> NDArray[np.float32]:
-    """Bin, then Gaussian-filter a foreground image.
+def bin_image(image: NDArray[np.uint8], bin_px: int) -> NDArray[np.uint8]:
+    """Mean of ``bin_px × bin_px`` bins (rounded to grey levels); the image itself for 1."""
+    if bin_px == 1:
+        return image
+    height, width = image.shape
+    size = (width // bin_px, height // bin_px)
+    return np.asarray(cv2.resize(image, size, interpolation=cv2.INTER_AREA), np.uint8)
+
+
+def matched_filter(foreground: NDArray[np.float32], sigma_px: float) -> NDArray[np.float32]:
+    """Gaussian-filter a foreground image, wrapping its columns at the 360° seam.
 
     Parameters
     ----------
     foreground : ndarray of float32, shape (H, W)
         Frame minus background, grey levels (signed).
     sigma_px : float
-        Gaussian ``σ`` in binned pixels; 0 disables the filter.
-    bin_px : int
-        Bin side ``b`` (1: no binning). ``H`` and ``W`` must be multiples of ``b``.
+        Gaussian ``σ`` in pixels; 0 disables the filter.
 
     Returns
     -------
-    ndarray of float32, shape (H / b, W / b)
-        The filtered foreground, grey levels (a bin holds the mean of its pixels; the
-        filter kernel sums to 1).
+    ndarray of float32, shape (H, W)
+        The filtered foreground, grey levels (the kernel sums to 1).
     """
-    height, width = foreground.shape
-    image = foreground
-    if bin_px > 1:
-        size = (width // bin_px, height // bin_px)
-        image = np.asarray(cv2.resize(foreground, size, interpolation=cv2.INTER_AREA))
     if sigma_px <= 0:
-        return np.asarray(image, np.float32)
+        return foreground
     pad = math.ceil(3 * sigma_px)
-    wrapped = cv2.copyMakeBorder(image, 0, 0, pad, pad, cv2.BORDER_WRAP)
-    filtered = cv2.GaussianBlur(wrapped, (0, 0), sigma_px, borderType=cv2.BORDER_REPLICATE)
-    return np.ascontiguousarray(filtered[:, pad:-pad], dtype=np.float32)
+    kernel = (2 * pad + 1, 2 * pad + 1)  # truncated at 3σ: the pad covers it exactly
+    # The whole image with replicated borders, then its first and last columns again
+    # from a narrow strip that joins the two edges (cheaper than padding the image).
+    out = cv2.GaussianBlur(foreground, kernel, sigma_px, borderType=cv2.BORDER_REPLICATE)
+    if foreground.shape[1] >= 4 * pad:
+        strip = np.hstack([foreground[:, -2 * pad :], foreground[:, : 2 * pad]])
+        joined = cv2.GaussianBlur(strip, kernel, sigma_px, borderType=cv2.BORDER_REPLICATE)
+        out[:, :pad] = joined[:, 2 * pad : 3 * pad]
+        out[:, -pad:] = joined[:, pad : 2 * pad]
+    else:
+        wrapped = cv2.copyMakeBorder(foreground, 0, 0, pad, pad, cv2.BORDER_WRAP)
+        out = cv2.GaussianBlur(wrapped, kernel, sigma_px, borderType=cv2.BORDER_REPLICATE)
+        out = out[:, pad:-pad]
+    return np.ascontiguousarray(out, dtype=np.float32)

@@ -5,8 +5,8 @@ finds flashes a few grey levels above its background, a grainy or wind-shaken on
 not flooded with candidates. The noise is measured on the *negative* half of the
 filtered foreground ``F`` (frame minus background): flashes only add light, so they
 cannot inflate it, while sensor grain and swaying foliage move both ways. For
-zero-mean Gaussian noise of deviation ``σ``, ``E[max(−F, 0)] = σ / √(2π)``; each
-frame's tile means of ``max(−F, 0)`` are averaged over the last ``window`` frames.
+zero-mean Gaussian noise of deviation ``σ``, ``E[max(−F, 0)] = σ / √(2π)``; the tile
+means of ``max(−F, 0)`` of every `SAMPLE_EVERY`-th frame are averaged over a window.
 
 The running sum is kept in integers (tile means quantised to 1/1024 grey level), so
 the estimate does not depend on how many frames the window has slid over: a frame
@@ -22,6 +22,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 _QUANTUM = 1024.0
+
+#: Frames between two samples of the noise (global frame index multiples): the noise
+#: changes over seconds, so every other frame halves the cost and loses nothing.
+SAMPLE_EVERY = 2
 _GAUSSIAN_SCALE = math.sqrt(2.0 * math.pi)
 
 
@@ -39,7 +43,7 @@ class TileNoise:
     grid : (int, int)
         Tile rows and columns (`tile_grid`).
     window : int
-        Frames averaged (the most recent ones).
+        Samples averaged (the most recent ones).
     """
 
     def __init__(self, grid: tuple[int, int], window: int) -> None:
@@ -56,7 +60,7 @@ class TileNoise:
     def update(self, foreground: NDArray[np.float32]) -> None:
         """Add one frame's filtered foreground (grey levels, signed)."""
         rows, cols = self._sum.shape
-        negative = np.minimum(foreground, 0.0)
+        _, negative = cv2.threshold(foreground, 0.0, 0.0, cv2.THRESH_TOZERO_INV)  # min(F, 0)
         # INTER_AREA over a whole-image shrink averages each tile's pixels.
         means = cv2.resize(negative, (cols, rows), interpolation=cv2.INTER_AREA)
         quantised = np.rint(-means.astype(np.float64) * _QUANTUM).astype(np.int64)

@@ -46,7 +46,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Protocol
 
 import cv2
@@ -65,8 +65,8 @@ from pipeline.blobs import (
 )
 from pipeline.chunking import frames_read
 from pipeline.detections import Detections
-from pipeline.matched_filter import binning, matched_filter
-from pipeline.noise import tile_grid
+from pipeline.matched_filter import bin_image, binning, matched_filter
+from pipeline.noise import SAMPLE_EVERY, tile_grid
 from pipeline.params import TrackingParams
 from pipeline.patches import extract_patches
 from pipeline.video import Frame, VideoInfo, iter_frames
@@ -224,9 +224,7 @@ class _FrameDetector:
             )
         self._binned = (info.height // self._bin, info.width // self._bin)
         grid = tile_grid(self._binned, params.noise_tile_px)
-        self._lanes = Lanes((info.height, info.width), grid, info.fps, params, start)
-        # A blurred spot is wider: widen the centroid window with it.
-        self._ring_radius = 1 + math.ceil(params.blur_px)
+        self._lanes = Lanes(self._binned, grid, info.fps, params, start)
         # A σ = 1 px spot filtered by the matched filter is √(1 + σ_f²) px wide; the
         # centroid window spans 3 of those, so it does not truncate the spot.
         self._spot_radius = math.ceil(3 * math.hypot(1.0, params.matched_sigma_px))
@@ -238,17 +236,19 @@ class _FrameDetector:
     def process(self, frame: Frame) -> Blobs | None:
         """Blobs of `frame`, or None for a warm-up frame before the range."""
         image = _blur(frame.y, self._params.blur_px) if self._params.blur_px > 0 else frame.y
+        small = bin_image(image, self._bin)
         blobs: Blobs | None = None
         for lane, tracks in self._lanes.at(frame.index):
-            foreground = lane.background.foreground(image)
+            foreground = lane.background.foreground(small)
             if foreground is not None:
-                filtered = matched_filter(foreground, self._params.matched_sigma_px, self._bin)
-                lane.noise.update(filtered)
+                filtered = matched_filter(foreground, self._params.matched_sigma_px)
+                if frame.index % SAMPLE_EVERY == 0 or lane.noise.frames == 0:
+                    lane.noise.update(filtered)
                 if tracks and frame.index >= self._start:
-                    floor = self._noise_floor(lane.background.level())
-                    sigma = np.maximum(self._upsample(lane.noise.sigma()), floor)
-                    blobs = self._detect(foreground, filtered, sigma, frame.y)
-            lane.background.update(image)
+                    tiles = np.maximum(lane.noise.sigma(), np.float32(self._params.min_noise))
+                    sigma = self._upsample(tiles)
+                    blobs = self._detect(filtered, sigma, image, lane.background.level())
+            lane.background.update(small)
         if blobs is None and frame.index >= self._start:
             blobs = Blobs.empty()  # nothing seen yet: the frame is its own background
         return blobs
@@ -265,12 +265,12 @@ class _FrameDetector:
 
     def _detect(
         self,
-        foreground: NDArray[np.float32],
         filtered: NDArray[np.float32],
         sigma: NDArray[np.float32],
         luma: NDArray[np.uint8],
+        background: NDArray[np.float32],
     ) -> Blobs:
-        idx, snr = self._extent_pixels(filtered, sigma)
+        idx, snr = self._extent_pixels(filtered, sigma, background)
         idx, snr = self._limit_pixels(idx, snr)
         labels, blob_snr, peak = self._seeded(idx, snr)
         area = np.bincount(labels[labels >= 0], minlength=len(blob_snr)) * self._bin**2
@@ -278,41 +278,43 @@ class _FrameDetector:
         inside = np.isin(labels, keep)
         # Renumber the kept blobs 0.. in their (raster) order.
         idx, snr, labels = idx[inside], snr[inside], np.searchsorted(keep, labels[inside])
-        full_idx, full_labels = upsample(idx, labels, self._binned[1], self._bin)
-        blobs = measure(full_idx, full_labels, foreground, luma, blob_snr[keep], self._ring_radius)
-        sigma_px = sigma.ravel()[idx].astype(np.float64)
         # Only the spot around its peak locates a candidate: a flash on the rim of a
         # brighter glow must not be pulled toward it.
-        near = _chebyshev(idx, peak[keep][labels], self._binned[1]) <= self._spot_radius
-        weights = np.where(near, (snr - self._params.extent_threshold) * sigma_px, 0.0)
-        x, y = centroid(idx, labels, weights, self._binned[1], self._bin)
-        return replace(blobs, x=x, y=y)
+        width = self._binned[1]
+        near = _chebyshev(idx, peak[keep][labels], width) <= self._spot_radius
+        # The response above the extent level, in σ (the noise scale is nearly constant
+        # over a spot).
+        weights = np.where(near, snr - self._params.extent_threshold, 0.0)
+        x, y = centroid(idx, labels, weights, width, self._bin)
+        full_idx, full_labels = upsample(idx, labels, width, self._bin)
+        rows, cols = np.divmod(full_idx, luma.shape[1])
+        values = luma[rows, cols] - background[rows // self._bin, cols // self._bin]
+        return measure(full_idx, full_labels, values, luma, blob_snr[keep], x, y)
 
     def _upsample(self, tiles: NDArray[np.float32]) -> NDArray[np.float32]:
         height, width = self._binned
         return np.asarray(cv2.resize(tiles, (width, height), interpolation=cv2.INTER_NEAREST))
 
-    def _noise_floor(self, background: NDArray[np.float32]) -> NDArray[np.float32]:
-        """``min_noise + relative_noise · B`` on the binned grid (grey levels)."""
-        height, width = self._binned
-        if self._bin > 1:
-            size = (width, height)
-            background = np.asarray(cv2.resize(background, size, interpolation=cv2.INTER_AREA))
-        relative, minimum = (
-            np.float32(self._params.relative_noise),
-            np.float32(self._params.min_noise),
-        )
-        return background * relative + minimum
-
     def _extent_pixels(
-        self, filtered: NDArray[np.float32], sigma: NDArray[np.float32]
+        self,
+        filtered: NDArray[np.float32],
+        sigma: NDArray[np.float32],
+        background: NDArray[np.float32],
     ) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
-        """Flat indices (ascending) and SNR of the pixels above the extent level."""
-        level = sigma * np.float32(self._params.extent_threshold)
-        np.greater(filtered, level, out=self._mask)
+        """Flat indices (ascending) and SNR of the pixels above the extent level.
+
+        `sigma` is the tile estimate (at least ``min_noise``); the floor that grows
+        with the background, ``min_noise + relative_noise · B``, only raises it, so it
+        is applied to the few pixels above the tile level rather than to the frame.
+        """
+        extent = np.float32(self._params.extent_threshold)
+        np.greater(filtered, sigma * extent, out=self._mask)
         idx = np.flatnonzero(self._mask)  # fast on bool, slow on a uint8 mask
-        snr = filtered.ravel()[idx] / sigma.ravel()[idx]
-        return idx, snr.astype(np.float64)
+        floor = background.ravel()[idx] * self._params.relative_noise + self._params.min_noise
+        noise = np.maximum(sigma.ravel()[idx].astype(np.float64), floor)
+        snr = filtered.ravel()[idx] / noise
+        above = snr > extent
+        return idx[above], snr[above]
 
     def _limit_pixels(
         self, idx: NDArray[np.intp], snr: NDArray[np.float64]
@@ -332,12 +334,18 @@ class _FrameDetector:
 
         A candidate is a local maximum of the SNR reaching the seed level; a blob
         holding several (two flashes side by side, a flash on a bright rim) is split
-        between them, nearest peak first.
+        between them, nearest peak first. A blob larger than ``max_area`` (a lamp,
+        headlights) is dropped whole, however many peaks its plateau has.
         """
         width = self._binned[1]
         radius = max(1, math.ceil(2 * self._params.matched_sigma_px))
-        peaks = local_maxima(idx, snr, width, radius) & (snr >= self._params.threshold)
-        labels = split_at_peaks(idx, label(idx, width), peaks, width)
+        blobs = label(idx, width)
+        area = np.bincount(blobs) * self._bin**2 if len(blobs) else np.zeros(0, np.intp)
+        too_large = area > self._params.max_area
+        self._dropped_by_area += int(np.count_nonzero(too_large))
+        seeds = (snr >= self._params.threshold) & ~too_large[blobs]
+        peaks = local_maxima(idx, snr, width, radius, seeds)
+        labels = split_at_peaks(idx, blobs, peaks, width)
         return labels, snr[peaks], idx[peaks]
 
     def _filter(self, area: NDArray[np.intp], snr: NDArray[np.float64]) -> NDArray[np.intp]:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.matched_filter import binning, matched_filter
+from pipeline.matched_filter import bin_image, binning, matched_filter
 
 
 def _spot(shape: tuple[int, int], u: float, v: float, amplitude: float, sigma: float) -> np.ndarray:
@@ -28,13 +28,16 @@ def test_the_filter_raises_the_snr_of_a_point_flash() -> None:
 def test_the_filter_wraps_around_the_seam() -> None:
     image = _spot((64, 128), 0.0, 32.0, 100.0, 1.0)
     filtered = matched_filter(image, 1.0)
+    # Equal to filtering the image padded with its own other side.
+    padded = np.hstack([image[:, -8:], image, image[:, :8]])
+    np.testing.assert_allclose(filtered, matched_filter(padded, 1.0)[:, 8:-8], atol=1e-4)
     assert abs(filtered[32, 1] - filtered[32, 127]) < 1e-2  # symmetric about column 0
     assert filtered[32, 127] > 10
 
 
 def test_binning_averages_and_is_chosen_from_the_width() -> None:
-    image = np.arange(16, dtype=np.float32).reshape(4, 4)
-    binned = matched_filter(image, 0.0, bin_px=2)
-    np.testing.assert_allclose(binned, [[2.5, 4.5], [10.5, 12.5]])
+    image = np.arange(0, 64, 4, dtype=np.uint8).reshape(4, 4)
+    np.testing.assert_array_equal(bin_image(image, 2), [[10, 18], [42, 50]])
+    assert bin_image(image, 1) is image
     assert binning(640) == 1 and binning(1280) == 1 and binning(3840) == 2
     assert binning(5760) == 3 and binning(3840, requested=1) == 1

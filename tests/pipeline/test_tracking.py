@@ -311,8 +311,8 @@ def test_frames_read_covers_the_warm_up() -> None:
     assert frames_read(30, 60, FPS, FAST) == (21, 60)
     assert frames_read(37, 60, FPS, FAST) == (21, 60)
     assert frames_read(5, 10, FPS, FAST) == (0, 10)
-    # Box: the 9 frames of the box before the start, and 9 more for its noise window.
-    assert frames_read(37, 60, FPS, FAST.model_copy(update={"background": "box"})) == (19, 60)
+    # Box: the 9 frames of the box before the start, and 9 + 2 more for its noise window.
+    assert frames_read(37, 60, FPS, FAST.model_copy(update={"background": "box"})) == (17, 60)
 
 
 # -- classifier, progress, limits ------------------------------------------------------
