@@ -202,3 +202,26 @@ def save_patch_set(patches: PatchSet, root: str | Path, frames: np.ndarray, xy: 
         folder, prefix = ("flash", "f") if label else ("background", "b")
         path = root / folder / f"{prefix}-{group}-f{frame:04d}x{x:04d}y{y:04d}.png"
         cv2.imwrite(str(path), image[..., ::-1])
+
+
+def folder_manifest(root: str | Path) -> dict[str, object]:
+    """Identity of a data folder for a model card: per-class counts, a SHA-256 over
+    the sorted (relative path, file hash) pairs, and any generator manifest
+    (``simulated.json`` / ``synthetic.json``) found in it."""
+    import hashlib
+    import json
+
+    root = Path(root)
+    digest = hashlib.sha256()
+    counts = {}
+    for name in CLASS_FOLDERS:
+        files = find_images(root / name) if (root / name).is_dir() else []
+        counts[name] = len(files)
+        for path in files:
+            digest.update(str(path.relative_to(root)).encode())
+            digest.update(hashlib.sha256(path.read_bytes()).digest())
+    out: dict[str, object] = {"counts": counts, "sha256": digest.hexdigest()}
+    for generator in ("simulated.json", "synthetic.json"):
+        if (root / generator).is_file():
+            out["generator"] = json.loads((root / generator).read_text())
+    return out
