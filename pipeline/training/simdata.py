@@ -333,6 +333,20 @@ def _flash_rgb(rng: np.random.Generator) -> np.ndarray:
     return flash_colour(np.array([rng.uniform(0.0, 1.0) ** 0.7]))[0]
 
 
+def _light_rgb(rng: np.random.Generator) -> np.ndarray:
+    """Colour of artificial lights and reflections: sodium orange, warm or cold white,
+    bluish LED; never the yellow-green of a firefly (green clearly above red), so that a
+    large yellow-green blob, a firefly close to the lens, is not taught as a negative."""
+    kind = rng.integers(4)
+    if kind == 0:  # sodium / warm orange: red above green
+        return np.array([1.0, rng.uniform(0.55, 0.8), rng.uniform(0.1, 0.4)])
+    if kind == 1:  # warm white
+        return np.array([1.0, rng.uniform(0.85, 0.95), rng.uniform(0.7, 0.9)])
+    if kind == 2:  # cold white
+        return np.array([rng.uniform(0.9, 1.0), 1.0, rng.uniform(1.0, 1.15)])
+    return np.array([rng.uniform(0.6, 0.8), rng.uniform(0.8, 0.95), 1.0])  # bluish LED
+
+
 def _add_flash(rng: np.random.Generator, canvas: np.ndarray, cy: float, cx: float) -> None:
     s = canvas.shape[0]
     sigma = rng.uniform(0.6, 2.0)
@@ -361,7 +375,7 @@ def _negative(rng: np.random.Generator, canvas: np.ndarray, kind: str) -> None:
             canvas += blob[..., None] * rng.uniform(60, 400) * colour
     elif kind == "lamp":  # saturated core, wide halo, warm or cold white
         r = np.hypot(yy - c, xx - c)
-        colour = np.array([1.0, rng.uniform(0.6, 1.0), rng.uniform(0.2, 1.0)])
+        colour = _light_rgb(rng)
         core = rng.uniform(2.5, 7.0)
         halo = np.exp(-r / rng.uniform(4.0, 12.0)) * rng.uniform(60, 250)
         canvas += (np.clip(core + 0.5 - r, 0, 1) * 800 + halo)[..., None] * colour
@@ -388,7 +402,7 @@ def _negative(rng: np.random.Generator, canvas: np.ndarray, kind: str) -> None:
     else:  # wide out-of-focus blob (reflection, defocused lamp)
         sigma = rng.uniform(3.5, 8.0)
         blob = np.exp(-((yy - c) ** 2 + (xx - c) ** 2) / (2 * sigma**2))
-        canvas += blob[..., None] * rng.uniform(40, 300) * _flash_rgb(rng)
+        canvas += blob[..., None] * rng.uniform(40, 300) * _light_rgb(rng)
 
 
 def _develop(rng: np.random.Generator, linear: np.ndarray, camera: Camera) -> np.ndarray:
