@@ -34,6 +34,8 @@ CHUNK_NPZ = "work/tracking/cam{camera}/{start:08d}-{stop:08d}.npz"
 CHUNK_METRICS_JSON = "work/tracking/cam{camera}/{start:08d}-{stop:08d}.json"
 #: Every candidate blob of a camera, with its flash probability.
 CANDIDATES_NPZ = "work/candidates_cam{camera}.npz"
+#: The acceptance evidence on each candidate of a camera (`pipeline.acceptance`).
+EVIDENCE_NPZ = "work/evidence_cam{camera}.npz"
 #: Accepted detections of a camera (CONTRACT file).
 FLASHES_CSV = "flashes_cam{camera}.csv"
 

@@ -16,10 +16,11 @@ def frames_read(start: int, stop: int, fps: float, params: TrackingParams) -> tu
     """Global frame range ``[first, stop)`` that tracking ``[start, stop)`` decodes.
 
     ``first`` is where the background model's warm-up begins: the start of the EWMA
-    block's warm-up, or ``L`` frames before ``start`` for the box mean.
+    block's warm-up, or ``2L`` frames before ``start`` for the box mean (``L`` for the
+    mean, ``L`` more for the noise window measured against it).
     """
     if params.background == "box":
-        return max(0, start - box_length(fps, params)), stop
+        return max(0, start - 2 * box_length(fps, params)), stop
     block, warmup = block_grid(fps, params)
     return max(0, (start // block) * block - warmup), stop
 

@@ -50,8 +50,8 @@ def _add_parameter_options(parser: argparse.ArgumentParser, *, tracking: bool) -
         group.add_argument(
             "--threshold",
             type=float,
-            help="tracking threshold on the foreground (frame - background), as a fraction "
-            "of full scale (default 0.2)",
+            help="tracking seed level in units of the noise sigma of the matched-filtered "
+            "foreground (default 4)",
         )
         group.add_argument("--model", help="ONNX flash classifier (default: the shipped model)")
         group.add_argument("--model-card", help="model card JSON (default: beside the model)")
@@ -63,7 +63,8 @@ def _add_parameter_options(parser: argparse.ArgumentParser, *, tracking: bool) -
         group.add_argument(
             "--no-classifier",
             action="store_true",
-            help="accept every candidate: the background-subtraction-only baseline",
+            help="accept every candidate (no classifier, flicker test or acceptance "
+            "evidence): the background-subtraction-only baseline",
         )
     group.add_argument(
         "--max-delay",
@@ -74,7 +75,7 @@ def _add_parameter_options(parser: argparse.ArgumentParser, *, tracking: bool) -
 
 
 def _params_from_args(args: argparse.Namespace) -> ProcessParams:
-    from pipeline.params import ProcessParams
+    from pipeline.params import BACKGROUND_SUBTRACTION_ONLY, ProcessParams, with_overrides
 
     overrides: dict[str, Any] = {}
     if args.params:
@@ -89,9 +90,7 @@ def _params_from_args(args: argparse.Namespace) -> ProcessParams:
         "sync": {"max_delay_s": args.max_delay},
     }
     if getattr(args, "no_classifier", False):
-        # The background-subtraction-only baseline: no patch classifier, no flicker test.
-        cli["classifier"]["enabled"] = False
-        cli["flicker"] = {"enabled": False}
+        overrides = with_overrides(overrides, BACKGROUND_SUBTRACTION_ONLY)
     for section, values in cli.items():
         chosen = {k: v for k, v in values.items() if v is not None}
         if chosen:

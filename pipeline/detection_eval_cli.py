@@ -125,16 +125,15 @@ def _log(args: argparse.Namespace, message: str) -> None:
 
 
 def process_params(overrides_file: Path | None, no_classifier: bool) -> ProcessParams:
-    """`ProcessParams` with a JSON file's overrides; ``no_classifier`` turns the patch
-    classifier and the flicker test off (as ``firefly3d process --no-classifier``)."""
-    from pipeline.params import ProcessParams
+    """`ProcessParams` with a JSON file's overrides; ``no_classifier`` gives the
+    background-subtraction-only baseline (as ``firefly3d process --no-classifier``)."""
+    from pipeline.params import BACKGROUND_SUBTRACTION_ONLY, ProcessParams, with_overrides
 
     overrides: dict[str, Any] = {}
     if overrides_file is not None:
         overrides = json.loads(Path(overrides_file).read_text(encoding="utf-8"))
     if no_classifier:
-        overrides.setdefault("classifier", {})["enabled"] = False
-        overrides.setdefault("flicker", {})["enabled"] = False
+        overrides = with_overrides(overrides, BACKGROUND_SUBTRACTION_ONLY)
     return ProcessParams().merged(overrides)
 
 

@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 #: Columns written to ``flashes_cam*.csv``, in order (CONTRACT: starts with frame,x,y).
-CSV_COLUMNS = ("frame", "x", "y", "area", "peak", "flash_probability")
+CSV_COLUMNS = ("frame", "x", "y", "area", "peak", "flash_probability", "snr")
 
 
 @dataclass(frozen=True)
@@ -37,6 +37,9 @@ class Detections:
         Pixel of the largest luminance in the blob: the centre of its patch.
     flash_probability : float32
         Classifier output in [0, 1]; NaN where no classifier was run.
+    snr : float32
+        Largest matched-filter response of the blob in units of the noise σ
+        (`pipeline.tracking`); NaN for detections made elsewhere.
     """
 
     frame: np.ndarray
@@ -47,6 +50,7 @@ class Detections:
     peak_x: np.ndarray
     peak_y: np.ndarray
     flash_probability: np.ndarray
+    snr: np.ndarray
 
     _DTYPES: ClassVar[dict[str, type]] = {
         "frame": np.int64,
@@ -57,6 +61,7 @@ class Detections:
         "peak_x": np.int32,
         "peak_y": np.int32,
         "flash_probability": np.float32,
+        "snr": np.float32,
     }
 
     def __post_init__(self) -> None:
@@ -84,11 +89,12 @@ class Detections:
         peak_x: ArrayLike | None = None,
         peak_y: ArrayLike | None = None,
         flash_probability: ArrayLike | None = None,
+        snr: ArrayLike | None = None,
     ) -> Self:
         """Build a table from the required columns; optional ones get neutral defaults.
 
         Missing ``peak_x``/``peak_y`` default to the rounded centroid, ``area`` to 1,
-        ``peak`` and ``flash_probability`` to NaN.
+        ``peak``, ``flash_probability`` and ``snr`` to NaN.
         """
         x = np.asarray(x, dtype=np.float64)
         y = np.asarray(y, dtype=np.float64)
@@ -104,6 +110,7 @@ class Detections:
             flash_probability=(
                 np.full(n, np.nan) if flash_probability is None else np.asarray(flash_probability)
             ),
+            snr=np.full(n, np.nan) if snr is None else np.asarray(snr),
         )
 
     @classmethod
@@ -152,10 +159,13 @@ class Detections:
     @classmethod
     def from_npz(cls, path: str | Path) -> Self:
         with np.load(path) as data:
-            return cls(**{f.name: data[f.name] for f in fields(cls)})
+            columns = {f.name: data[f.name] for f in fields(cls) if f.name in data}
+        if "snr" not in columns:  # written before the SNR column existed
+            columns["snr"] = np.full(len(columns["frame"]), np.nan)
+        return cls(**columns)
 
     def to_csv(self, path: str | Path) -> None:
-        """Write ``frame,x,y,area,peak,flash_probability`` (the CONTRACT header)."""
+        """Write ``frame,x,y,area,peak,flash_probability,snr`` (the CONTRACT header)."""
         write_csv(
             path,
             {
@@ -165,16 +175,23 @@ class Detections:
                 "area": self.area,
                 "peak": self.peak,
                 "flash_probability": self.flash_probability,
+                "snr": self.snr,
             },
-            formats={"x": "%.4f", "y": "%.4f", "peak": "%.2f", "flash_probability": "%.5f"},
+            formats={
+                "x": "%.4f",
+                "y": "%.4f",
+                "peak": "%.2f",
+                "flash_probability": "%.5f",
+                "snr": "%.2f",
+            },
         )
 
     @classmethod
     def from_csv(cls, path: str | Path) -> Self:
         """Read a detections CSV whose header contains at least ``frame,x,y``.
 
-        Extra columns are ignored; ``area``, ``peak`` and ``flash_probability`` are used
-        when present. Raises ``ValueError`` naming the file on a malformed table.
+        Extra columns are ignored; ``area``, ``peak``, ``flash_probability`` and ``snr``
+        are used when present. Raises ``ValueError`` naming the file on a malformed table.
         """
         table = read_csv(path, required=("frame", "x", "y"))
         frame = table["frame"]
@@ -189,6 +206,7 @@ class Detections:
             area=table.get("area"),
             peak=table.get("peak"),
             flash_probability=table.get("flash_probability"),
+            snr=table.get("snr"),
         )
 
 

@@ -14,8 +14,8 @@ videos it needs, and where its function is. Three runners iterate the same table
 
 Adding a stage is one entry here and one function (``StageContext -> StageResult``)::
 
-    probe ─▶ track (chunks × cameras) ─▶ merge (× cameras) ─▶ sync ─▶ pose ─▶ triangulate
-          ─▶ link ─▶ patterns ─▶ report
+    probe ─▶ track (chunks × cameras) ─▶ merge (× cameras) ─▶ sync ─▶ pose ─▶ accept
+          ─▶ triangulate ─▶ link ─▶ patterns ─▶ report
       └──▶ clock (the night's real time; needed from link on) ──┘
 
 File names in ``reads`` / ``writes`` are `pipeline.artifacts` templates: ``{camera}``
@@ -46,6 +46,7 @@ from pipeline.artifacts import (
     CHUNK_METRICS_JSON,
     CHUNK_NPZ,
     CLOCK_JSON,
+    EVIDENCE_NPZ,
     FLASH_PATTERNS_CSV,
     FLASHES_CSV,
     METRICS_DIR,
@@ -240,29 +241,37 @@ STAGES: tuple[Stage, ...] = (
         scope="camera",
         after=("track",),
         reads=(PROBE_JSON, CHUNK_NPZ, CHUNK_METRICS_JSON),
-        writes=(CANDIDATES_NPZ, FLASHES_CSV),
-        description="join a camera's chunks and accept the candidates that are flashes",
+        writes=(CANDIDATES_NPZ, EVIDENCE_NPZ),
+        description="join a camera's chunks and weigh each candidate's own evidence",
     ),
     Stage(
         "sync",
         "pipeline.stages:sync",
         after=("merge",),
-        reads=(PROBE_JSON, FLASHES_CSV),
+        reads=(PROBE_JSON, CANDIDATES_NPZ, EVIDENCE_NPZ),
         writes=(SYNC_JSON,),
-        description="frame delay between the cameras from their flash counts",
+        description="frame delay between the cameras from their confident flash counts",
     ),
     Stage(
         "pose",
         "pipeline.stages:pose",
         after=("sync",),
-        reads=(PROBE_JSON, SYNC_JSON, FLASHES_CSV),
+        reads=(PROBE_JSON, SYNC_JSON, CANDIDATES_NPZ, EVIDENCE_NPZ),
         writes=(CALIBRATION_JSON, CALIBRATION_PAIRS_NPZ),
-        description="relative pose of the cameras from frames with one flash each",
+        description="relative pose of the cameras from frames with one confident flash each",
+    ),
+    Stage(
+        "accept",
+        "pipeline.stages:accept",
+        after=("pose",),
+        reads=(PROBE_JSON, CALIBRATION_JSON, CANDIDATES_NPZ, EVIDENCE_NPZ),
+        writes=(FLASHES_CSV,),
+        description="accept confident flashes and the doubtful ones the other camera confirms",
     ),
     Stage(
         "triangulate",
         "pipeline.stages:triangulate",
-        after=("pose",),
+        after=("accept",),
         reads=(CALIBRATION_JSON, FLASHES_CSV),
         writes=(POINTS_NPZ,),
         description="match flashes between synchronised frames and triangulate them",

@@ -51,17 +51,56 @@ class TrackingParams(BaseModel):
         "see block_s); 'box': mean of the frames in the preceding τ (memory: τ·fps frames).",
     )
     threshold: float = Field(
-        default=0.1,
+        default=4.0,
         gt=0,
-        lt=1,
-        description="Candidate pixels have a foreground (frame − background, clipped at 0) "
-        "above this fraction of full scale. 0.1 (25.5 grey levels), half the source "
-        "method's 0.2: a point-like flash spreads over a few pixels (lens blur, pixel "
-        "sampling, compression), so its brightest pixel holds only 45–80 % of its peak, "
-        "and at 0.2 the dim rise/fall frames and distant flashes are lost (candidate "
-        "recall 0.76–0.85 on simulated recordings, 0.96–1.00 at 0.1). 25 levels is still "
-        "over 6σ of compressed night-time sensor noise; the classifier rejects the extra "
-        "candidates.",
+        le=1000,
+        description="Seed level of a candidate, in units of the noise σ of the matched-"
+        "filtered foreground (frame − background, see matched_sigma_px), estimated per "
+        "tile as the background runs (pipeline.noise). A blob is kept if one of its "
+        "pixels reaches it. Chosen on a measured curve (docs/detection.md): on simulated "
+        "nights candidate recall of flash-frames falls from 0.99 at 3σ to 0.9 at 6σ while "
+        "noise candidates per frame fall from hundreds to under one; at 4σ white noise "
+        "seeds about 3 pixels in 100,000 and the acceptance stage rejects what it lets in.",
+    )
+    extent_threshold: float = Field(
+        default=2.5,
+        gt=0,
+        le=1000,
+        description="Hysteresis: a blob extends over the connected pixels above this many "
+        "σ (at most `threshold`), so a flash's faint rim joins its core.",
+    )
+    min_noise: float = Field(
+        default=0.3,
+        ge=0,
+        description="Floor of the noise σ in grey levels of the filtered foreground: in "
+        "perfectly clean video (σ → 0) a seed still needs threshold × min_noise.",
+    )
+    relative_noise: float = Field(
+        default=0.01,
+        ge=0,
+        description="Floor of the noise σ in proportion to the background level B: σ ≥ "
+        "min_noise + relative_noise × B. Shot noise and compression grow with brightness; "
+        "the core of a static lamp jitters by about 1 % of its level from frame to frame, "
+        "which the tile estimate (dominated by dark sky) does not see.",
+    )
+    matched_sigma_px: float = Field(
+        default=1.0,
+        ge=0,
+        le=10,
+        description="σ of the Gaussian matched filter in (binned) pixels: the size of a "
+        "point flash's spot; 0 disables it.",
+    )
+    bin_px: int | None = Field(
+        default=None,
+        ge=1,
+        le=8,
+        description="Side of the bins the foreground is averaged over before filtering; "
+        "None: round(width / 1920) (2 for 4K), where spots span several pixels.",
+    )
+    noise_tile_px: int = Field(
+        default=32,
+        ge=4,
+        description="Side of the tiles the noise σ is estimated in, in (binned) pixels.",
     )
     blur_px: float = Field(
         default=0.0,
@@ -103,6 +142,10 @@ class TrackingParams(BaseModel):
 
     @model_validator(mode="after")
     def _consistent(self) -> TrackingParams:
+        if self.extent_threshold > self.threshold:
+            raise ValueError(
+                f"extent_threshold ({self.extent_threshold}) exceeds threshold ({self.threshold})"
+            )
         if self.max_area < self.min_area:
             raise ValueError(f"max_area ({self.max_area}) is below min_area ({self.min_area})")
         if self.warmup_tau * self.tau_s > self.block_s:
@@ -341,6 +384,68 @@ class PatternParams(BaseModel):
         return self
 
 
+class AcceptanceParams(BaseModel):
+    """How the evidence on each candidate decides whether it is a flash (`pipeline.acceptance`)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    enabled: bool = Field(
+        True,
+        description="Weigh the evidence; false = every candidate is a flash (the background-"
+        "subtraction baseline of --no-classifier).",
+    )
+    confident_snr: float = Field(
+        8.0,
+        ge=0,
+        description="A candidate the classifier accepts is confident from this SNR (σ) up; "
+        "fainter ones are doubtful and need stereo confirmation. The delay and the pose "
+        "are estimated from confident flashes only.",
+    )
+    doubt_probability: float = Field(
+        0.05,
+        ge=0,
+        le=1,
+        description="Below this flash probability a candidate is rejected outright; between "
+        "it and the classifier's threshold it is doubtful.",
+    )
+    max_flash_s: float = Field(
+        0.5,
+        gt=0,
+        description="A spot lit without a break for longer than this (s) is a lamp or a held "
+        "glint, not a flash (flashes last 0.03–0.3 s).",
+    )
+    radius_deg: float = Field(
+        1.0,
+        gt=0,
+        le=20,
+        description="Radius (degrees) within which candidates of consecutive frames belong "
+        "to the same lit spot (the light curve).",
+    )
+    stereo: bool = Field(True, description="Confirm doubtful candidates with the other camera.")
+    min_streak: int = Field(
+        3,
+        ge=1,
+        description="A doubtful candidate is confirmed when its stereo match links into a 3D "
+        "streak of at least this many frames.",
+    )
+    stereo_snr: float = Field(
+        6.0,
+        ge=0,
+        description="…or when both candidates of the match stand this many σ above the noise "
+        "(noise candidates: 99 % under 6.3 σ in one camera on simulated nights).",
+    )
+    stereo_max_gap_deg: float = Field(
+        1.0,
+        gt=0,
+        description="Largest ray gap (degrees) of a confirming stereo match (at most "
+        "triangulation.max_gap_deg).",
+    )
+    anchored: bool = Field(
+        False,
+        description="Confirm only streaks that hold at least one confident flash.",
+    )
+
+
 class ClassifierParams(BaseModel):
     """Which flash classifier to run on candidate patches, and where to cut."""
 
@@ -366,6 +471,7 @@ class ProcessParams(BaseModel):
     triangulation: TriangulationParams = TriangulationParams()
     linking: LinkingParams = LinkingParams()
     flicker: FlickerParams = FlickerParams()
+    acceptance: AcceptanceParams = AcceptanceParams()
     patterns: PatternParams = PatternParams()
     chunk_s: float = Field(60.0, gt=0, description="Length of a tracking chunk, seconds.")
 
@@ -378,6 +484,23 @@ class ProcessParams(BaseModel):
             If an override names an unknown parameter or has an invalid value.
         """
         return self.model_validate(_deep_merge(self.model_dump(), overrides))
+
+
+#: Overrides of the background-subtraction-only baseline (``--no-classifier``): no patch
+#: classifier, no flicker test, no acceptance evidence; every candidate is a flash.
+BACKGROUND_SUBTRACTION_ONLY: dict[str, dict[str, Any]] = {
+    "classifier": {"enabled": False},
+    "flicker": {"enabled": False},
+    "acceptance": {"enabled": False},
+}
+
+
+def with_overrides(*layers: Mapping[str, Any]) -> dict[str, Any]:
+    """Overrides of several sources deep-merged in order (later layers win)."""
+    merged: dict[str, Any] = {}
+    for layer in layers:
+        merged = _deep_merge(merged, layer)
+    return merged
 
 
 def _deep_merge(base: dict[str, Any], overrides: Mapping[str, Any]) -> dict[str, Any]:

@@ -13,7 +13,6 @@ from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
 
-from pipeline.artifacts import flashes_name
 from pipeline.graph import (
     STAGES,
     Stage,
@@ -104,25 +103,25 @@ def reconstruct(
 ) -> RunOutcome:
     """Run the stages after ``merge`` from per-camera detections (``frame,x,y`` CSVs).
 
-    The detections are taken as accepted flashes; they are copied, normalised, to
-    ``flashes_cam1.csv`` / ``flashes_cam2.csv`` in ``out_dir``, and the probe is made
-    from the frame size and rate given.
+    The detections are taken as flashes (those with an ``snr`` column below
+    ``acceptance.confident_snr`` need stereo confirmation, as candidates of our own
+    tracker do); the probe is made from the frame size and rate given.
     """
     from pipeline.detections import Detections
-    from pipeline.stages import probe_detections
+    from pipeline.stages import import_detections, probe_detections
 
     validate_separation(separation_m)
+    params = params or ProcessParams()
     out_dir.mkdir(parents=True, exist_ok=True)
     det1, det2 = Detections.from_csv(flashes1), Detections.from_csv(flashes2)
-    for camera, det in ((1, det1), (2, det2)):
-        det.sorted().to_csv(out_dir / flashes_name(camera))
+    import_detections({1: det1, 2: det2}, out_dir, params.acceptance.confident_snr)
     probed = probe_detections(det1, det2, width, height, fps, out_dir)
     outcome = RunOutcome(out_dir)
     outcome.results["probe"] = record(out_dir, Unit("probe"), probed, 0.0)
     context = StageContext(
         workdir=out_dir,
         unit=Unit("probe"),
-        params=params or ProcessParams(),
+        params=params,
         separation_m=separation_m,
         camera_height_m=camera_height_m,
         night=night or NightInfo(),

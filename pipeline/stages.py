@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from pipeline.acceptance import Evidence, assess, confirm
 from pipeline.artifacts import (
     CALIBRATION_JSON,
     CALIBRATION_PAIRS_NPZ,
@@ -25,6 +26,7 @@ from pipeline.artifacts import (
     CHUNK_METRICS_JSON,
     CHUNK_NPZ,
     CLOCK_JSON,
+    EVIDENCE_NPZ,
     FLASH_PATTERNS_CSV,
     FLASHES_CSV,
     POINTS_NPZ,
@@ -35,7 +37,6 @@ from pipeline.artifacts import (
 from pipeline.classify import FlashClassifier
 from pipeline.clock import NightClock, night_clock
 from pipeline.detections import Detections
-from pipeline.flicker import flickering
 from pipeline.graph import StageContext, StageResult, earlier_units, read_record
 from pipeline.jsonio import read_json, write_json
 from pipeline.params import ClassifierParams, validate_separation
@@ -172,11 +173,11 @@ def _tracking_totals(chunk_metrics: Iterable[Mapping[str, Any]]) -> dict[str, An
 
 
 def merge(ctx: StageContext) -> StageResult:
-    """Concatenate a camera's chunks and keep the candidates that are flashes.
+    """Concatenate a camera's chunks and weigh each candidate's own evidence.
 
-    A candidate is accepted if the classifier accepts it (always, without one) and it
-    does not sit on a flickering spot (`pipeline.flicker`). Writes every candidate
-    (``candidates_cam<c>.npz``) and the accepted ones (``flashes_cam<c>.csv``).
+    Writes every candidate (``candidates_cam<c>.npz``) and its step-1 evidence
+    (``evidence_cam<c>.npz``: flicker, light curve, classifier, SNR;
+    `pipeline.acceptance.assess`).
     """
     camera = ctx.unit.camera
     chunks = ctx.paths(CHUNK_NPZ)
@@ -187,18 +188,16 @@ def merge(ctx: StageContext) -> StageResult:
     # tracker (ours, or another behind `reconstruct`) happened to list its blobs.
     candidates = Detections.concat(Detections.from_npz(p) for p in chunks).sorted()
     threshold = accept_threshold(ctx.params.classifier)
-    flicker = flickering(
-        candidates.frame,
-        candidates.x,
-        candidates.y,
+    evidence = assess(
+        candidates,
         ctx.probe.width,
         ctx.probe.fps,
+        threshold,
+        ctx.params.acceptance,
         ctx.params.flicker,
     )
-    keep = ~flicker if threshold is None else ~flicker & (candidates.flash_probability >= threshold)
-    accepted = candidates.select(keep)
     candidates.to_npz(ctx.path(CANDIDATES_NPZ))
-    accepted.to_csv(ctx.path(FLASHES_CSV))
+    evidence.save(ctx.path(EVIDENCE_NPZ))
     tracking = _tracking_totals(
         read_json(p)["metrics"] for p in ctx.paths(CHUNK_METRICS_JSON) if p.exists()
     )
@@ -206,15 +205,46 @@ def merge(ctx: StageContext) -> StageResult:
         "camera": camera,
         "n_chunks": len(chunks),
         "n_candidates": len(candidates),
-        "n_flickering": int(flicker.sum()),
-        "n_accepted": len(accepted),
+        "verdicts": evidence.counts(),
         "threshold": threshold,
         "tracking": tracking,
     }
     warnings = []
-    if len(accepted) == 0:
-        warnings.append(f"camera {camera}: no flashes accepted out of {len(candidates)} candidates")
+    if not evidence.confident.any():
+        warnings.append(
+            f"camera {camera}: no confident flash among {len(candidates)} candidates (if the "
+            "recording shows fireflies, lower tracking.threshold or classifier.threshold)"
+        )
     return StageResult(metrics=metrics, warnings=warnings)
+
+
+def import_detections(
+    detections: Mapping[int, Detections], workdir: Path, confident_snr: float
+) -> None:
+    """Write detections made elsewhere as a run's candidates and evidence (`reconstruct`).
+
+    They are taken as flashes, except rows whose SNR is below `confident_snr`
+    (`pipeline.acceptance.Evidence.imported`), which need stereo confirmation.
+    """
+    for camera, found in detections.items():
+        ordered = found.sorted()
+        path = workdir / CANDIDATES_NPZ.format(camera=camera)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        ordered.to_npz(path)
+        Evidence.imported(ordered, confident_snr).save(workdir / EVIDENCE_NPZ.format(camera=camera))
+
+
+def _candidates(
+    ctx: StageContext,
+) -> tuple[tuple[Detections, Detections], tuple[Evidence, Evidence]]:
+    det1, det2 = (Detections.from_npz(p) for p in ctx.paths(CANDIDATES_NPZ))
+    ev1, ev2 = (Evidence.load(p) for p in ctx.paths(EVIDENCE_NPZ))
+    return (det1, det2), (ev1, ev2)
+
+
+def _confident(ctx: StageContext) -> tuple[Detections, Detections]:
+    (det1, det2), (ev1, ev2) = _candidates(ctx)
+    return det1.select(ev1.confident), det2.select(ev2.confident)
 
 
 def _accepted(ctx: StageContext) -> tuple[Detections, Detections]:
@@ -225,7 +255,7 @@ def _accepted(ctx: StageContext) -> tuple[Detections, Detections]:
 def sync(ctx: StageContext) -> StageResult:
     """Frame delay between the cameras from their per-frame flash counts."""
     probe = ctx.probe
-    det1, det2 = _accepted(ctx)
+    det1, det2 = _confident(ctx)
     estimate = estimate_delay(
         det1.counts_per_frame(probe.n_frames[1]),
         det2.counts_per_frame(probe.n_frames[2]),
@@ -253,7 +283,7 @@ def pose(ctx: StageContext) -> StageResult:
     validate_separation(ctx.separation_m)
     probe = ctx.probe
     delay = read_json(ctx.path(SYNC_JSON))
-    det1, det2 = _accepted(ctx)
+    det1, det2 = _confident(ctx)
     pairs = calibration_pairs(det1, det2, int(delay["delay_frames"]), probe.width)
     estimate = estimate_pose(pairs, ctx.params.pose)
     np.savez_compressed(
@@ -290,6 +320,48 @@ def pose(ctx: StageContext) -> StageResult:
         "residuals": estimate.stats,
     }
     return StageResult(metrics=metrics, warnings=list(estimate.warnings))
+
+
+def accept(ctx: StageContext) -> StageResult:
+    """Accept the confident candidates and the doubtful ones the other camera confirms.
+
+    Writes ``flashes_cam1.csv`` and ``flashes_cam2.csv``; the metrics count, per camera,
+    the candidates accepted and rejected by each kind of evidence.
+    """
+    validate_separation(ctx.separation_m)
+    calibration = read_calibration(ctx.path(CALIBRATION_JSON))
+    candidates, evidence = _candidates(ctx)
+    outcome = confirm(
+        candidates,
+        evidence,
+        calibration.delay_frames,
+        calibration.pose,
+        calibration.width,
+        ctx.separation_m,
+        ctx.probe.fps,
+        ctx.params.acceptance,
+        ctx.params.triangulation,
+        ctx.params.linking,
+    )
+    metrics: dict[str, Any] = {}
+    accepted = (outcome.accepted1, outcome.accepted2)
+    stereo = (outcome.stereo1, outcome.stereo2)
+    for camera, det, ev, keep, confirmed, path in zip(
+        CAMERAS, candidates, evidence, accepted, stereo, ctx.paths(FLASHES_CSV), strict=True
+    ):
+        det.select(keep).to_csv(path)
+        verdicts = ev.counts()
+        metrics[f"cam{camera}"] = {
+            "candidates": len(det),
+            "accepted": int(keep.sum()),
+            "accepted_confident": verdicts["confident"],
+            "accepted_stereo": int(confirmed.sum()),
+            "rejected_flicker": verdicts["flicker"],
+            "rejected_light_curve": verdicts["steady"],
+            "rejected_classifier": verdicts["classifier"],
+            "rejected_unconfirmed": verdicts["doubtful"] - int(confirmed.sum()),
+        }
+    return StageResult(metrics=metrics)
 
 
 def triangulate(ctx: StageContext) -> StageResult:

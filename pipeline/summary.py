@@ -31,7 +31,8 @@ def summarise(records: Mapping[Unit, StageResult], params: ProcessParams) -> dic
     -------
     dict
         ``counts``, ``delay_frames``, ``delay_confidence``, ``rotation``,
-        ``translation``, ``residuals``, ``tracking`` (per camera), ``clock`` (when
+        ``translation``, ``residuals``, ``tracking`` (per camera), ``acceptance`` (per
+        camera: candidates accepted and rejected by each kind of evidence), ``clock`` (when
         camera 1's frame 0 was recorded, UTC and local, and the sunset; `pipeline.clock`),
         ``patterns`` (the night's flash-pattern figures; `pipeline.patterns`), ``warnings``,
         ``timings_s`` (per unit; ``track_cam<c>`` = the camera's tracking time summed
@@ -46,7 +47,7 @@ def summarise(records: Mapping[Unit, StageResult], params: ProcessParams) -> dic
     counts: dict[str, Any] = {}
     for camera in CAMERAS:
         counts[f"candidates_cam{camera}"] = value(f"merge_cam{camera}", "n_candidates")
-        counts[f"flashes_cam{camera}"] = value("sync", f"n_flashes_cam{camera}")
+        counts[f"flashes_cam{camera}"] = (value("accept", f"cam{camera}") or {}).get("accepted")
     counts.update(
         calibration_pairs=value("pose", "n_calibration_pairs"),
         calibration_inliers=value("pose", "n_calibration_inliers"),
@@ -69,6 +70,9 @@ def summarise(records: Mapping[Unit, StageResult], params: ProcessParams) -> dic
         "translation": value("pose", "translation"),
         "residuals": value("pose", "residuals") or {},
         "tracking": tracking,
+        "acceptance": {k: v for k, v in metrics["accept"].items() if k != "seconds"}
+        if "accept" in metrics
+        else None,
         "clock": {k: v for k, v in metrics["clock"].items() if k != "seconds"}
         if "clock" in metrics
         else None,

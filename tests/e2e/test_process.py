@@ -19,7 +19,7 @@ import pytest
 from pipeline import artifacts
 from pipeline.cli import main
 from pipeline.detections import Detections
-from pipeline.evaluate import evaluate_run
+from pipeline.evaluate import detection_scores, evaluate_run
 from pipeline.params import PatternParams
 from pipeline.patterns import night_patterns
 from pipeline.results import FLASH_PATTERN_COLUMNS, read_flash_patterns, read_trajectories
@@ -151,9 +151,17 @@ def test_reconstruct_from_detections_equals_process(simulated, tmp_path) -> None
         ]
     )
     assert code == 0
-    assert (rebuilt / "trajectories.csv").read_text() == (
-        processed / "trajectories.csv"
-    ).read_text()
+    # The flashes come back as accepted; the pose is fitted on those with an SNR of 8 σ
+    # or more (process also asks the classifier), so it can differ in the last digits.
+    rebuilt_table = read_trajectories(rebuilt / "trajectories.csv")
+    processed_table = read_trajectories(processed / "trajectories.csv")
+    assert list(rebuilt_table) == list(processed_table)
+    assert len(processed_table["frame"]) > 300
+    for name, column in processed_table.items():
+        if column.dtype.kind == "f":
+            np.testing.assert_allclose(rebuilt_table[name], column, rtol=0, atol=2e-4)
+        else:
+            np.testing.assert_array_equal(rebuilt_table[name], column, err_msg=name)
 
 
 def test_chunked_tracking_gives_the_same_results(simulated, tmp_path) -> None:
@@ -189,15 +197,29 @@ def test_hevc_and_chapters(simulated, tmp_path) -> None:
     assert accuracy.recall_within_2pct >= 0.9
 
 
-def test_background_subtraction_baseline_floods_on_foliage(simulated, tmp_path) -> None:
-    """Without the classifier, foliage in wind floods camera detections with false ones."""
+def _f1(detections: Detections, truth: GroundTruth, camera: int) -> float:
+    recall, precision = detection_scores(detections, truth, camera)
+    return 2 * recall * precision / (recall + precision) if recall + precision else 0.0
+
+
+def test_acceptance_beats_background_subtraction_in_wind(simulated, tmp_path) -> None:
+    """In wind-shaken foliage, weighing the evidence keeps detection F1 >= 0.9 where
+    background subtraction alone (every candidate a flash) stays below 0.5."""
     recording = simulated(scenario="foliage", seed=2)
-    with_cnn, without = tmp_path / "cnn", tmp_path / "baseline"
-    assert run_process(recording, with_cnn) == 0
-    run_process(recording, without, "--no-classifier")  # may fail to calibrate: that is the point
-    det_cnn = Detections.from_csv(with_cnn / "flashes_cam1.csv")
-    det_all = Detections.from_csv(without / "flashes_cam1.csv")
-    assert len(det_all) > 2 * len(det_cnn)
+    accepted, baseline = tmp_path / "accepted", tmp_path / "baseline"
+    assert run_process(recording, accepted) == 0
+    # The baseline may not even calibrate in foliage: its candidates are what it accepts.
+    run_process(recording, baseline, "--no-classifier")
+    for camera in artifacts.CAMERAS:
+        flashes = Detections.from_csv(accepted / artifacts.flashes_name(camera))
+        everything = Detections.from_npz(baseline / artifacts.candidates_name(camera))
+        assert _f1(flashes, recording.truth, camera) >= 0.9
+        assert _f1(everything, recording.truth, camera) < 0.5
+    summary = json.loads((accepted / artifacts.SUMMARY_JSON).read_text())
+    counts = summary["acceptance"]["cam1"]
+    assert counts["accepted"] == counts["accepted_confident"] + counts["accepted_stereo"]
+    rejected = [counts[k] for k in counts if k.startswith("rejected_")]
+    assert counts["candidates"] == counts["accepted"] + sum(rejected)
 
 
 def check_real_time_and_package(out: Path) -> None:

@@ -20,7 +20,7 @@ def test_csv_round_trip(tmp_path) -> None:
     det = _sample()
     path = tmp_path / "flashes.csv"
     det.to_csv(path)
-    assert path.read_text().splitlines()[0] == "frame,x,y,area,peak,flash_probability"
+    assert path.read_text().splitlines()[0] == "frame,x,y,area,peak,flash_probability,snr"
     back = Detections.from_csv(path)
     np.testing.assert_array_equal(back.frame, det.frame)
     np.testing.assert_allclose(back.x, det.x, atol=1e-4)

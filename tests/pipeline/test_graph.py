@@ -40,6 +40,7 @@ def test_plan_leaves_chunks_until_the_probe_is_known() -> None:
         "merge/cam2",
         "sync",
         "pose",
+        "accept",
         "triangulate",
         "clock",
         "link",

@@ -129,7 +129,10 @@ def test_oversized_declared_size(api_service: Service, team: str, night_id: str)
     ("params", "expected"),
     [
         ({"chunk_s": -1}, "chunk_s: Input should be greater than 0"),
-        ({"tracking": {"threshold": 2}}, "tracking.threshold: Input should be less than 1"),
+        (
+            {"tracking": {"threshold": 2000}},
+            "tracking.threshold: Input should be less than or equal to 1000",
+        ),
         ({"no_such_stage": {}}, "no_such_stage: Extra inputs are not permitted"),
     ],
 )

@@ -101,7 +101,7 @@ def test_stages_run_in_dependency_order(
     broker = Broker()
     call(sessions, workflow.submit, storage, broker, job_id)
     assert broker.take() == ["probe"]
-    assert Counter(statuses(sessions, job_id).values()) == {"queued": 1, "pending": 9}
+    assert Counter(statuses(sessions, job_id).values()) == {"queued": 1, "pending": 10}
 
     finish(sessions, job_id, ["probe"])
     call(sessions, workflow.advance, storage, broker, job_id)
@@ -122,7 +122,8 @@ def test_stages_run_in_dependency_order(
     for previous, following in [
         ("merge/cam2", "sync"),
         ("sync", "pose"),
-        ("pose", "triangulate"),
+        ("pose", "accept"),
+        ("accept", "triangulate"),
         ("triangulate", "link"),
         ("link", "patterns"),
         ("patterns", "report"),
@@ -242,7 +243,7 @@ def test_rerun_reuses_earlier_stages(
         assert job.status == "queued" and job.error is None
         assert [a.name for a in job.artifacts] == ["work/sync.json"]
     for key, (attempt, status) in before.items():
-        if key in ("pose", "triangulate", "clock", "link", "patterns", "report"):
+        if key in ("pose", "accept", "triangulate", "clock", "link", "patterns", "report"):
             assert after[key] == (attempt, "queued" if key in ("pose", "clock") else "pending")
         else:
             assert after[key] == (attempt, status) == (1, "succeeded")

@@ -1,0 +1,138 @@
+"""Acceptance of flash candidates from every kind of evidence (pipeline.acceptance)."""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from pipeline.acceptance import Evidence, Verdict, assess, confirm, steady_frames
+from pipeline.detections import Detections
+from pipeline.geometry import Pose, bearing_to_pixel
+from pipeline.params import AcceptanceParams, FlickerParams, LinkingParams, TriangulationParams
+
+WIDTH, FPS, SEPARATION = 640, 60.0, 1.5
+POSE = Pose(np.eye(3), [1.0, 0.0, 0.0])
+THRESHOLD = 0.7
+
+
+def _candidates(rows: list[tuple[int, float, float, float, float]]) -> Detections:
+    frame, x, y, probability, snr = (np.array(c) for c in zip(*rows, strict=True))
+    return Detections.from_columns(frame, x, y, flash_probability=probability, snr=snr)
+
+
+def _flash(start: int, x: float, y: float, frames: int, probability: float, snr: float):
+    return [(start + i, x + 0.2 * i, y, probability, snr) for i in range(frames)]
+
+
+def test_a_lit_spot_is_measured_frame_span_of_its_chain() -> None:
+    frame = np.array([10, 11, 12, 13, 40, 41, 100, 101, 102])
+    x = np.array([100.0, 100.4, 100.8, 101.2, 639.5, 0.3, 300.0, 310.0, 320.0])
+    y = np.array([50.0, 50.0, 50.2, 50.1, 80.0, 80.0, 60.0, 60.0, 60.0])
+    lit = steady_frames(frame, x, y, WIDTH, radius_deg=1.0)  # 1° = 1.8 px here
+    assert lit.tolist() == [4, 4, 4, 4, 2, 2, 1, 1, 1]  # across the seam; jumps break it
+
+
+def test_each_kind_of_evidence_gives_its_verdict() -> None:
+    rng = np.random.default_rng(4)
+    rows = [
+        *_flash(0, 100, 50, 5, 0.95, 20.0),  # confident
+        *_flash(100, 200, 60, 5, 0.4, 20.0),  # the classifier is unsure: doubtful
+        *_flash(200, 300, 70, 5, 0.95, 5.0),  # faint: doubtful
+        *_flash(300, 400, 80, 5, 0.01, 30.0),  # the classifier says no
+        *_flash(400, 500, 90, 90, 0.95, 30.0),  # lit 1.5 s: a lamp
+    ]
+    # Moonlight through leaves: the same spot lit in 70 % of 300 frames, never 31 in a row.
+    lit = np.flatnonzero(rng.random(300) < 0.7)
+    lit = lit[(lit % 31) != 0]
+    rows += [(int(k), 50.0, 150.0, 0.95, 20.0) for k in lit + 600]
+    candidates = _candidates(rows)
+    evidence = assess(candidates, WIDTH, FPS, THRESHOLD, AcceptanceParams(), FlickerParams())
+    verdict = evidence.verdict
+    assert np.all(verdict[0:5] == Verdict.CONFIDENT)
+    assert np.all(verdict[5:15] == Verdict.DOUBTFUL)
+    assert np.all(verdict[15:20] == Verdict.CLASSIFIER)
+    assert np.all(verdict[20:110] == Verdict.STEADY)
+    # (within a second of its ends the flicker window is half empty)
+    assert np.all(verdict[110:][60:-60] == Verdict.FLICKER)
+    assert evidence.counts()["steady"] == 90 and evidence.lit_frames[20] == 90
+
+
+def test_without_a_classifier_snr_decides_and_disabled_accepts_all() -> None:
+    candidates = _candidates([(0, 10.0, 10.0, np.nan, 12.0), (5, 90.0, 10.0, np.nan, 4.5)])
+    evidence = assess(candidates, WIDTH, FPS, None, AcceptanceParams(), FlickerParams())
+    assert evidence.verdict.tolist() == [Verdict.CONFIDENT, Verdict.DOUBTFUL]
+    off = assess(candidates, WIDTH, FPS, None, AcceptanceParams(enabled=False), FlickerParams())
+    assert off.confident.all()
+
+
+def _seen(points: NDArray[np.float64], camera: int) -> tuple[NDArray, NDArray]:
+    local = points if camera == 1 else POSE.world_to_camera2(points, SEPARATION)
+    return bearing_to_pixel(local, WIDTH)
+
+
+def _stereo_scene() -> tuple[tuple[Detections, Detections], tuple[Evidence, Evidence]]:
+    """Camera 1 and 2 candidates: a faint firefly over 4 frames (doubtful in both), a
+    confident flash, a faint single-frame flash, and unmatched noise in camera 1."""
+    track = np.array([[4.0 + 0.02 * i, 3.0, 1.0] for i in range(4)])
+    single = np.array([[-3.0, 5.0, 2.0]])
+    bright = np.array([[2.0, -6.0, 1.5]])
+    frames = {"track": np.arange(10, 14), "single": np.array([30]), "bright": np.array([50])}
+    dets, evs = [], []
+    for camera in (1, 2):
+        u, v, f, snr, verdict = [], [], [], [], []
+        for name, points, s, kind in (
+            ("track", track, 5.0, Verdict.DOUBTFUL),
+            ("single", single, 5.0, Verdict.DOUBTFUL),
+            ("bright", bright, 30.0, Verdict.CONFIDENT),
+        ):
+            pu, pv = _seen(points, camera)
+            u += pu.tolist()
+            v += pv.tolist()
+            f += frames[name].tolist()
+            snr += [s] * len(points)
+            verdict += [kind] * len(points)
+        if camera == 1:  # noise: a doubtful candidate nothing in camera 2 matches
+            u, v, f = [*u, 500.0], [*v, 40.0], [*f, 70]
+            snr, verdict = [*snr, 4.5], [*verdict, Verdict.DOUBTFUL]
+        det = Detections.from_columns(f, u, v, snr=snr)
+        dets.append(det)
+        evs.append(Evidence(np.array(verdict, np.int8), np.ones(len(det), np.int64)))
+    return (dets[0], dets[1]), (evs[0], evs[1])
+
+
+def _confirm(params: AcceptanceParams):
+    candidates, evidence = _stereo_scene()
+    return confirm(
+        candidates,
+        evidence,
+        0,
+        POSE,
+        WIDTH,
+        SEPARATION,
+        FPS,
+        params,
+        TriangulationParams(),
+        LinkingParams(),
+    )
+
+
+def test_stereo_confirms_a_faint_streak_but_not_a_faint_single_frame_or_noise() -> None:
+    outcome = _confirm(AcceptanceParams())
+    # Rows: 4 streak frames, 1 faint single frame, 1 confident flash (+ noise in cam 1).
+    assert outcome.accepted1.tolist() == [True] * 4 + [False, True, False]
+    assert outcome.stereo1.tolist() == [True] * 4 + [False, False, False]
+    assert outcome.accepted2.tolist() == [True] * 4 + [False, True]
+
+
+def test_bright_matches_are_confirmed_without_a_streak_and_stereo_can_be_off() -> None:
+    bright = _confirm(AcceptanceParams(stereo_snr=5.0))
+    assert bright.accepted1[4] and bright.accepted2[4]  # both stand 5 σ: confirmed
+    anchored = _confirm(AcceptanceParams(anchored=True))
+    assert not anchored.stereo1.any()  # no confident flash in the faint streak
+    off = _confirm(AcceptanceParams(stereo=False))
+    assert off.accepted1.tolist() == [False] * 5 + [True, False]
+
+
+def test_imported_detections_are_confident_unless_faint() -> None:
+    det = Detections.from_columns([0, 1, 2], [1.0, 2.0, 3.0], [1.0, 1.0, 1.0], snr=[np.nan, 20, 5])
+    assert Evidence.imported(det, 8.0).verdict.tolist() == [0, 0, 1]

@@ -1,0 +1,50 @@
+"""The running tile estimate of the foreground's noise (pipeline.noise)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.noise import TileNoise, tile_grid
+
+
+def test_a_known_sigma_is_recovered_per_tile() -> None:
+    rng = np.random.default_rng(0)
+    sigma = np.array([[0.5, 1.0, 2.0, 4.0]], np.float32)  # one row of four tiles
+    noise = TileNoise((1, 4), window=30)
+    for _ in range(30):
+        frame = rng.normal(0, 1, (32, 128)).astype(np.float32) * np.repeat(sigma, 32, axis=1)
+        noise.update(frame)
+    assert noise.frames == 30
+    np.testing.assert_allclose(noise.sigma(), sigma, rtol=0.03)
+
+
+def test_flashes_do_not_inflate_the_estimate() -> None:
+    rng = np.random.default_rng(1)
+    quiet, lit = TileNoise((2, 2), window=20), TileNoise((2, 2), window=20)
+    for _ in range(20):
+        frame = rng.normal(0, 1.5, (64, 64)).astype(np.float32)
+        flashed = frame.copy()
+        flashed[rng.integers(0, 64, 40), rng.integers(0, 64, 40)] += 200.0  # 40 bright spots
+        quiet.update(frame)
+        lit.update(flashed)
+    np.testing.assert_allclose(lit.sigma(), quiet.sigma(), rtol=0.02)
+    np.testing.assert_allclose(quiet.sigma(), 1.5, rtol=0.05)
+
+
+def test_the_window_forgets_old_frames_exactly() -> None:
+    rng = np.random.default_rng(2)
+    noisy = [rng.normal(0, 3.0, (16, 16)).astype(np.float32) for _ in range(5)]
+    calm = [rng.normal(0, 0.5, (16, 16)).astype(np.float32) for _ in range(4)]
+    slid, fresh = TileNoise((1, 1), window=4), TileNoise((1, 1), window=4)
+    for frame in [*noisy, *calm]:
+        slid.update(frame)
+    for frame in calm:
+        fresh.update(frame)
+    # Integer sums: a window that slid over other frames equals one started afresh.
+    assert np.array_equal(slid.sigma(), fresh.sigma())
+
+
+def test_before_any_frame_sigma_is_zero_and_grids_cover_the_image() -> None:
+    assert np.all(TileNoise((3, 6), window=5).sigma() == 0)
+    assert tile_grid((320, 640), 32) == (10, 20)
+    assert tile_grid((10, 20), 32) == (1, 1)
