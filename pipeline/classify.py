@@ -25,7 +25,7 @@ import onnxruntime as ort
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 MODELS_DIR = Path(__file__).resolve().parent / "models"
-DEFAULT_MODEL_NAME = "flashnet33.onnx"
+DEFAULT_MODEL_NAME = "flashnet2.onnx"
 #: Patches per onnxruntime call: beyond a few hundred the activations leave the CPU
 #: caches and throughput drops (bench/bench_classifier.py).
 DEFAULT_BATCH = 256

@@ -32,6 +32,9 @@ class AugmentConfig:
     streak : probability of a 5-pixel motion streak (horizontal or diagonal before the
         random flips, so any of 4 directions), rescaled to the patch's former peak as
         a fast firefly near the camera draws a saturated line.
+    saturation : spread of the colour saturation: each patch is mixed with its grey
+        by a factor ``exp(U(-s, s/2))`` (cameras differ most in how saturated a
+        flash looks: GoPro flashes are near white, phone ones yellow-green).
     """
 
     dihedral: bool = True
@@ -41,10 +44,11 @@ class AugmentConfig:
     shift: float = 0.3
     noise: float = 0.02
     streak: float = 0.2
+    saturation: float = 0.5
 
 
 NO_AUGMENT = AugmentConfig(
-    dihedral=False, brightness=0, colour=0, blur=0, shift=0, noise=0, streak=0
+    dihedral=False, brightness=0, colour=0, blur=0, shift=0, noise=0, streak=0, saturation=0
 )
 _STREAK_LENGTH = 5
 _STREAK_KERNELS = (
@@ -84,6 +88,11 @@ def augment(x: torch.Tensor, config: AugmentConfig, generator: torch.Generator) 
     log_gain = (torch.rand(n, 1, 1, 1, generator=generator) * 2 - 1) * config.brightness
     log_gain = log_gain + torch.randn(n, 3, 1, 1, generator=generator) * config.colour
     x = x * torch.exp(log_gain)
+    if config.saturation:
+        u = torch.rand(n, 1, 1, 1, generator=generator)
+        factor = torch.exp((u * 1.5 - 1.0) * config.saturation)
+        grey = x.mean(dim=1, keepdim=True)
+        x = grey + factor * (x - grey)
     sigma = torch.rand(n, 1, 1, 1, generator=generator) * config.noise
     x = x + torch.randn(x.shape, generator=generator) * sigma
     return x.clamp(0.0, 1.0)  # the sensor saturates

@@ -4,7 +4,8 @@ A dataset folder holds ``flash/`` and ``background/`` sub-folders of image patch
 (.png/.jpg/.jpeg, searched recursively) centred on a blob's brightest pixel. The label
 comes from the sub-folder. The *group* of a patch is its source recording, the unit
 of every split: file names ``f-<video>-f<frame>x<x>y<y>.png`` / ``b-<video>-...``
-(the firefl-eye convention, also written by `save_patch_set`) give ``<video>``; a
+(the firefl-eye convention, also written by `save_patch_set`) and
+``f-<video>-<index>.png`` (the firefl-eye GoPro set) give ``<video>``; a
 file named otherwise belongs to the group of its dataset folder as a whole, because
 patches of one recording are strongly correlated and an unknown name gives no safer
 split.
@@ -26,6 +27,8 @@ from pipeline.classify import center_crop_or_pad
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 CLASS_FOLDERS = {"flash": 1, "background": 0}
 _NAME = re.compile(r"^[fb]-(?P<video>.+)-f(?P<frame>\d+)x(?P<x>\d+)y(?P<y>\d+)$")
+#: The first firefl-eye GoPro set: ``f-<camera/recording>-<index>`` (e.g. f-gp4941-0001).
+_NUMBERED = re.compile(r"^[fb]-(?P<video>[A-Za-z0-9]+)-(?P<index>\d+)$")
 
 
 @dataclass(frozen=True)
@@ -113,7 +116,7 @@ class PatchSet:
 
 def video_id(path: Path, default: str) -> str:
     """Source recording of a patch from its file name, else ``default``."""
-    match = _NAME.match(path.stem)
+    match = _NAME.match(path.stem) or _NUMBERED.match(path.stem)
     return match["video"] if match else default
 
 
@@ -202,3 +205,26 @@ def save_patch_set(patches: PatchSet, root: str | Path, frames: np.ndarray, xy: 
         folder, prefix = ("flash", "f") if label else ("background", "b")
         path = root / folder / f"{prefix}-{group}-f{frame:04d}x{x:04d}y{y:04d}.png"
         cv2.imwrite(str(path), image[..., ::-1])
+
+
+def folder_manifest(root: str | Path) -> dict[str, object]:
+    """Identity of a data folder for a model card: per-class counts, a SHA-256 over
+    the sorted (relative path, file hash) pairs, and any generator manifest
+    (``simulated.json`` / ``synthetic.json``) found in it."""
+    import hashlib
+    import json
+
+    root = Path(root)
+    digest = hashlib.sha256()
+    counts = {}
+    for name in CLASS_FOLDERS:
+        files = find_images(root / name) if (root / name).is_dir() else []
+        counts[name] = len(files)
+        for path in files:
+            digest.update(str(path.relative_to(root)).encode())
+            digest.update(hashlib.sha256(path.read_bytes()).digest())
+    out: dict[str, object] = {"counts": counts, "sha256": digest.hexdigest()}
+    for generator in ("simulated.json", "synthetic.json"):
+        if (root / generator).is_file():
+            out["generator"] = json.loads((root / generator).read_text())
+    return out

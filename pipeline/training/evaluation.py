@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -144,3 +145,161 @@ def format_report(results: Sequence[ModelResult], title: str) -> str:
 def _cell(s: Scores) -> str:
     auc = "" if np.isnan(s.auc) else f"/{s.auc:.3f}"
     return f"{f'{s.accuracy:.3f}{auc}':>16s}"
+
+
+def held_out_summary(
+    patches: PatchSet, probabilities: np.ndarray, threshold: float
+) -> dict[str, dict[str, object]]:
+    """Per data source, what a new user would see at ``threshold``.
+
+    - ``auc_two_class_recordings``: ROC AUC over the recordings that hold both
+      classes only (a one-class recording counts for recall or rejection, not AUC);
+      ``auc_pooled`` over all its patches;
+    - ``flash_recall`` over all flashes, ``background_rejection`` over all backgrounds,
+      ``accuracy``;
+    - ``expected_calibration_error`` and the ``reliability`` bins of the probability.
+    """
+    from pipeline.training.calibration import reliability
+    from pipeline.training.metrics import expected_calibration_error, roc_auc
+
+    out: dict[str, dict[str, object]] = {}
+    for source in np.unique(patches.sources):
+        rows = patches.sources == source
+        y, p, g = patches.labels[rows], probabilities[rows], patches.groups[rows]
+        two_class = np.array([len(np.unique(y[g == k])) == 2 for k in g])
+        accepted = p > threshold
+        flash, background = y == 1, y == 0
+        out[str(source)] = {
+            "n": int(rows.sum()),
+            "n_flash": int(flash.sum()),
+            "n_recordings": len(np.unique(g)),
+            "n_two_class_recordings": len(np.unique(g[two_class])),
+            "auc_two_class_recordings": _round(roc_auc(y[two_class], p[two_class])),
+            "auc_pooled": _round(roc_auc(y, p)),
+            "accuracy": _round(float((accepted == flash).mean())),
+            "flash_recall": _round(float(accepted[flash].mean()) if flash.any() else np.nan),
+            "background_rejection": _round(
+                float((~accepted[background]).mean()) if background.any() else np.nan
+            ),
+            "expected_calibration_error": _round(expected_calibration_error(y, p)),
+            "reliability": reliability(y, p),
+        }
+    return out
+
+
+def _round(x: float) -> float | None:
+    return None if np.isnan(x) else round(float(x), 4)
+
+
+def format_summary(summary: dict[str, dict[str, object]], threshold: float, title: str) -> str:
+    """Text table of `held_out_summary`, then the recall of each source's flashes
+    (the GoPro line) and the reliability bins, one line each."""
+
+    def f(x: object) -> str:
+        return "   n/a" if x is None else f"{x:6.3f}"
+
+    lines = [title, ""]
+    header = (
+        f"{'source':44s} {'recs':>4s} {'n':>6s} {'flash':>6s} {'AUC2c':>6s} {'AUCall':>6s} "
+        f"{'acc':>6s} {'recall':>6s} {'reject':>6s} {'ECE':>6s}"
+    )
+    lines += [header, "-" * len(header)]
+    for source, s in summary.items():
+        lines.append(
+            f"{source[-44:]:44s} {s['n_recordings']:4d} {s['n']:6d} {s['n_flash']:6d} "
+            f"{f(s['auc_two_class_recordings'])} {f(s['auc_pooled'])} {f(s['accuracy'])} "
+            f"{f(s['flash_recall'])} {f(s['background_rejection'])} "
+            f"{f(s['expected_calibration_error'])}"
+        )
+    lines.append("AUC2c: over recordings holding both classes; AUCall: all patches pooled")
+    lines.append("")
+    for source, s in summary.items():
+        lines.append(
+            f"flash recall at threshold {threshold:.3f} on {source}: {f(s['flash_recall']).strip()}"
+            f" ({s['n_flash']} flashes)"
+        )
+    lines.append("")
+    lines.append("reliability (bin: n, mean predicted -> observed flash frequency):")
+    for source, s in summary.items():
+        bins = s["reliability"]
+        assert isinstance(bins, list)
+        cells = "  ".join(
+            f"{b['bin']:.1f}:{b['n']} {b['predicted']:.2f}->{b['observed']:.2f}" for b in bins
+        )
+        lines.append(f"  {source[-40:]}: {cells}")
+    return "\n".join(lines)
+
+
+def plot_reliability(summary: dict[str, dict[str, object]], path: str | Path, title: str) -> None:
+    """Reliability diagram (observed flash frequency vs mean predicted probability),
+    one curve per data source, as a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.5, 5))
+    ax.plot([0, 1], [0, 1], color="grey", lw=1, ls="--", label="perfect calibration")
+    for source, s in summary.items():
+        bins = s["reliability"]
+        assert isinstance(bins, list)
+        pred = [b["predicted"] for b in bins]
+        obs = [b["observed"] for b in bins]
+        sizes = [max(8.0, 60 * np.sqrt(b["n"] / s["n"])) for b in bins]
+        name = Path(source).name
+        ax.plot(
+            pred, obs, marker="o", ms=3, label=f"{name} (ECE {s['expected_calibration_error']})"
+        )
+        ax.scatter(pred, obs, s=sizes, alpha=0.3)
+    ax.set(xlabel="mean predicted flash probability", ylabel="observed flash frequency",
+           xlim=(0, 1), ylim=(0, 1), title=title)  # fmt: skip
+    ax.legend(fontsize=7, loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def failure_montage(
+    patches: PatchSet,
+    probabilities: np.ndarray,
+    threshold: float,
+    path: str | Path,
+    per_source: int = 24,
+    scale: int = 3,
+) -> dict[str, int]:
+    """PNG of the misclassified patches, one row block per data source: rejected
+    flashes (lowest probability first) then accepted backgrounds (highest first),
+    each tile framed red (missed flash) or blue (false flash). Returns the number
+    of failures per source."""
+    import cv2
+
+    s = patches.size
+    tile = s * scale + 4
+    rows_img: list[np.ndarray] = []
+    counts: dict[str, int] = {}
+    for source in np.unique(patches.sources):
+        rows = np.flatnonzero(patches.sources == source)
+        y, p = patches.labels[rows], probabilities[rows]
+        missed = rows[(y == 1) & (p <= threshold)]
+        false = rows[(y == 0) & (p > threshold)]
+        counts[str(source)] = len(missed) + len(false)
+        missed = missed[np.argsort(probabilities[missed])][: per_source // 2]
+        false = false[np.argsort(-probabilities[false])][: per_source - len(missed)]
+        tiles = []
+        for i, colour in [(i, (255, 0, 0)) for i in missed] + [(i, (0, 128, 255)) for i in false]:
+            big = cv2.resize(patches.images[i], None, fx=scale, fy=scale,
+                             interpolation=cv2.INTER_NEAREST)  # fmt: skip
+            framed = np.full((tile, tile, 3), colour, np.uint8)
+            framed[2:-2, 2:-2] = big
+            cv2.putText(framed, f"{probabilities[i]:.2f}", (4, 14), cv2.FONT_HERSHEY_SIMPLEX,
+                        0.4, (255, 255, 255), 1)  # fmt: skip
+            tiles.append(framed)
+        label = np.zeros((18, tile * per_source, 3), np.uint8)
+        text = f"{Path(str(source)).name}: {counts[str(source)]} failures of {len(rows)}"
+        cv2.putText(label, text, (4, 13), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1)
+        strip = np.zeros((tile, tile * per_source, 3), np.uint8)
+        for k, t in enumerate(tiles):
+            strip[:, k * tile : (k + 1) * tile] = t
+        rows_img += [label, strip]
+    cv2.imwrite(str(path), np.concatenate(rows_img)[..., ::-1])
+    return counts

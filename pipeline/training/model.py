@@ -127,16 +127,21 @@ class FlashNet(nn.Module):
 
 
 class CalibratedFlashNet(nn.Module):
-    """A trained `FlashNet` with temperature scaling and the sigmoid: the shipped graph.
+    """A trained `FlashNet` with Platt scaling and the sigmoid: the shipped graph.
 
-    Outputs the calibrated flash probability ``sigmoid(logit / temperature)``, shape (N,).
+    Outputs the calibrated flash probability ``sigmoid(slope * logit + intercept)``,
+    shape (N,).
     """
 
-    def __init__(self, net: FlashNet, temperature: float) -> None:
+    slope: torch.Tensor
+    intercept: torch.Tensor
+
+    def __init__(self, net: FlashNet, slope: float = 1.0, intercept: float = 0.0) -> None:
         super().__init__()
         self.net = net
-        self.register_buffer("inverse_temperature", torch.tensor(1.0 / temperature))
+        self.register_buffer("slope", torch.tensor(float(slope)))
+        self.register_buffer("intercept", torch.tensor(float(intercept)))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """(N, 3, S, S) scaled patches -> (N,) flash probabilities."""
-        return torch.sigmoid(self.net(x) * self.inverse_temperature)
+        return torch.sigmoid(self.net(x) * self.slope + self.intercept)

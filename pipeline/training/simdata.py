@@ -243,3 +243,273 @@ def _describe(model: Path | None) -> dict[str, str] | None:
         "sha256": hashlib.sha256(model.read_bytes()).hexdigest(),
         "trained_by": str(card.training.get("command", "")),
     }
+
+
+# --- Domain-randomised procedural patches --------------------------------------------
+#
+# Rendered directly as patches (no video, no tracker), so that tens of thousands cost
+# seconds. Every nuisance that differs between cameras and nights is drawn at random:
+# flash peak from the noise floor to saturation, point spread and motion streaks,
+# colour from yellow-green to white, background from black sky to bright foliage, and
+# per pseudo-recording the camera: white balance, gamma, grain and compression. The
+# negatives are the things a tracker mistakes for flashes: foliage glints, lamps,
+# headlights and the moon seen through leaves, plus wide out-of-focus blobs.
+
+#: Kinds of procedural negatives (hard cases), drawn in equal shares.
+NEGATIVE_KINDS = ("glints", "lamp", "headlights", "moon", "blob")
+SYNTH_MANIFEST = "synthetic.json"
+_MARGIN = 8  # canvas margin around the patch, so the brightest pixel can be re-centred
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Per-recording rendering of light into 8-bit RGB."""
+
+    white_balance: NDArray[np.float64]  # (3,) channel gains
+    gamma: float
+    grain: float  # sensor noise σ, grey levels
+    jpeg_quality: int  # 0: no compression
+    chroma_blur: bool  # H.264-like 4:2:0 chroma
+    saturation: float
+
+    @classmethod
+    def draw(cls, rng: np.random.Generator) -> Camera:
+        """A random camera: a recording's colour, tone, noise and compression."""
+        return cls(
+            white_balance=np.exp(rng.normal(0.0, 0.12, 3)),
+            gamma=float(rng.uniform(0.75, 1.3)),
+            grain=float(rng.uniform(0.5, 6.0)),
+            jpeg_quality=int(rng.choice([0, 40, 60, 75, 90])),
+            chroma_blur=bool(rng.random() < 0.5),
+            saturation=float(rng.uniform(0.5, 1.3)),
+        )
+
+
+def _smooth_noise(rng: np.random.Generator, shape: tuple[int, int], sigma: float) -> np.ndarray:
+    """Zero-mean unit-std spatially correlated noise."""
+    import cv2
+
+    field = cv2.GaussianBlur(rng.normal(0.0, 1.0, shape), (0, 0), sigma)
+    return (field - field.mean()) / (field.std() + 1e-9)
+
+
+def _background(rng: np.random.Generator, s: int) -> np.ndarray:
+    """Linear-light background (s, s, 3), 0–255 scale: black sky to bright foliage."""
+    kind = rng.choice(["black", "sky", "dim_foliage", "foliage"], p=[0.35, 0.2, 0.25, 0.2])
+    if kind == "black":
+        level, texture = rng.uniform(0, 12), rng.uniform(0, 2)
+        tint = np.array([1.0, 1.0, rng.uniform(0.6, 1.4)])
+    elif kind == "sky":
+        level, texture = rng.uniform(5, 60), rng.uniform(0, 4)
+        tint = np.array([rng.uniform(0.5, 1.0), rng.uniform(0.7, 1.0), rng.uniform(1.0, 1.8)])
+    elif kind == "dim_foliage":
+        level, texture = rng.uniform(5, 40), rng.uniform(3, 15)
+        tint = np.array([rng.uniform(0.7, 1.1), rng.uniform(0.9, 1.3), rng.uniform(0.6, 1.1)])
+    else:
+        level, texture = rng.uniform(30, 140), rng.uniform(10, 45)
+        tint = np.array([rng.uniform(0.7, 1.1), rng.uniform(0.9, 1.3), rng.uniform(0.6, 1.2)])
+    yy, xx = np.mgrid[:s, :s] / s - 0.5
+    gradient = 1.0 + rng.normal(0, 0.3) * yy + rng.normal(0, 0.3) * xx
+    lum = level * gradient + texture * _smooth_noise(rng, (s, s), rng.uniform(1.0, 4.0))
+    return np.clip(lum, 0, None)[..., None] * tint
+
+
+def _psf(s: int, cy: float, cx: float, sigma: float, length: float, angle: float) -> np.ndarray:
+    """Unit-peak Gaussian spot smeared along a line of ``length`` px (a motion streak)."""
+    yy, xx = np.mgrid[:s, :s].astype(np.float64)
+    steps = max(1, int(np.ceil(length)) + 1)
+    offsets = np.linspace(-length / 2, length / 2, steps)
+    out = np.zeros((s, s))
+    for t in offsets:
+        y, x = cy + t * np.sin(angle), cx + t * np.cos(angle)
+        out += np.exp(-((yy - y) ** 2 + (xx - x) ** 2) / (2 * sigma**2))
+    return out / out.max()
+
+
+def _flash_rgb(rng: np.random.Generator) -> np.ndarray:
+    """Unit-luma colour from yellow-green (0) to white (1)."""
+    from pipeline.simulation.render import flash_colour
+
+    return flash_colour(np.array([rng.uniform(0.0, 1.0) ** 0.7]))[0]
+
+
+def _light_rgb(rng: np.random.Generator) -> np.ndarray:
+    """Colour of artificial lights and reflections: sodium orange, warm or cold white,
+    bluish LED; never the yellow-green of a firefly (green clearly above red), so that a
+    large yellow-green blob, a firefly close to the lens, is not taught as a negative."""
+    kind = rng.integers(4)
+    if kind == 0:  # sodium / warm orange: red above green
+        return np.array([1.0, rng.uniform(0.55, 0.8), rng.uniform(0.1, 0.4)])
+    if kind == 1:  # warm white
+        return np.array([1.0, rng.uniform(0.85, 0.95), rng.uniform(0.7, 0.9)])
+    if kind == 2:  # cold white
+        return np.array([rng.uniform(0.9, 1.0), 1.0, rng.uniform(1.0, 1.15)])
+    return np.array([rng.uniform(0.6, 0.8), rng.uniform(0.8, 0.95), 1.0])  # bluish LED
+
+
+def _add_flash(rng: np.random.Generator, canvas: np.ndarray, cy: float, cx: float) -> None:
+    s = canvas.shape[0]
+    sigma = rng.uniform(0.6, 2.0)
+    length = rng.choice([0.0, rng.uniform(1.0, 12.0)], p=[0.6, 0.4])
+    floor = float(canvas[..., 1].std()) + 3.0
+    low = min(max(floor * 4, 25.0), 300.0)
+    peak = float(np.exp(rng.uniform(np.log(low), np.log(600.0))))
+    spot = _psf(s, cy, cx, sigma, length, rng.uniform(0, np.pi))
+    canvas += spot[..., None] * peak * _flash_rgb(rng)
+
+
+def _negative(rng: np.random.Generator, canvas: np.ndarray, kind: str) -> None:
+    """Draw a hard negative centred on the canvas (in place)."""
+    s = canvas.shape[0]
+    c = s // 2
+    yy, xx = np.mgrid[:s, :s].astype(np.float64)
+    white = np.array([1.0, 1.0, 1.0])
+    if kind == "glints":  # specular leaves: several irregular bright spots on foliage
+        canvas += (rng.uniform(20, 90) * (1 + 0.3 * _smooth_noise(rng, (s, s), 3.0)))[..., None]
+        near = [c + rng.uniform(-14, 14, 2) for _ in range(rng.integers(2, 8))]
+        centres = [(c, c)] + [(y, x) for y, x in near]
+        colour = np.array([rng.uniform(0.8, 1.0), 1.0, rng.uniform(0.8, 1.3)])
+        for y, x in centres:
+            sy, sx = rng.uniform(0.8, 3.5, 2)
+            blob = np.exp(-((yy - y) ** 2 / (2 * sy**2) + (xx - x) ** 2 / (2 * sx**2)))
+            canvas += blob[..., None] * rng.uniform(60, 400) * colour
+    elif kind == "lamp":  # saturated core, wide halo, warm or cold white
+        r = np.hypot(yy - c, xx - c)
+        colour = _light_rgb(rng)
+        core = rng.uniform(2.5, 7.0)
+        halo = np.exp(-r / rng.uniform(4.0, 12.0)) * rng.uniform(60, 250)
+        canvas += (np.clip(core + 0.5 - r, 0, 1) * 800 + halo)[..., None] * colour
+    elif kind == "headlights":  # a pair of glaring lamps, or one with a beam
+        sep = rng.uniform(6, 20)
+        angle = rng.normal(0, 0.2)
+        colour = np.array([rng.uniform(0.85, 1.0), rng.uniform(0.9, 1.0), rng.uniform(0.9, 1.3)])
+        for side in (0.0, 1.0):
+            y, x = c + side * sep * np.sin(angle), c + side * sep * np.cos(angle)
+            r = np.hypot(yy - y, xx - x)
+            glare = np.exp(-r / rng.uniform(2.0, 8.0)) * rng.uniform(100, 400)
+            canvas += (np.clip(rng.uniform(1.0, 3.5) + 0.5 - r, 0, 1) * 700 + glare)[
+                ..., None
+            ] * colour
+    elif kind == "moon":  # a bright disc broken up by dark leaves; centred on a gap
+        offset = rng.uniform(-10, 10, 2)
+        r = np.hypot(yy - c - offset[0], xx - c - offset[1])
+        disc = np.clip(rng.uniform(8, 30) + 0.5 - r, 0, 1) * rng.uniform(150, 500)
+        leaves = _smooth_noise(rng, (s, s), rng.uniform(1.5, 4.0)) > rng.uniform(-0.5, 0.8)
+        leaves[c - 1 : c + 2, c - 1 : c + 2] = False
+        glow = np.exp(-r / 15.0) * rng.uniform(10, 60)
+        canvas *= np.where(leaves, 0.3, 1.0)[..., None]
+        canvas += (np.where(leaves, 0.05, 1.0) * disc + glow)[..., None] * white
+    else:  # wide out-of-focus blob (reflection, defocused lamp)
+        sigma = rng.uniform(3.5, 8.0)
+        blob = np.exp(-((yy - c) ** 2 + (xx - c) ** 2) / (2 * sigma**2))
+        canvas += blob[..., None] * rng.uniform(40, 300) * _light_rgb(rng)
+
+
+def _develop(rng: np.random.Generator, linear: np.ndarray, camera: Camera) -> np.ndarray:
+    """Camera processing of linear light: white balance, grain, tone curve, saturation,
+    clipping and compression -> uint8 RGB."""
+    import cv2
+
+    x = linear * camera.white_balance
+    x = x + rng.normal(0.0, 1.0, x.shape) * (camera.grain + 0.05 * np.sqrt(np.maximum(x, 0)))
+    x = 255.0 * (np.clip(x, 0, None) / 255.0) ** camera.gamma
+    grey = x.mean(axis=2, keepdims=True)
+    x = grey + camera.saturation * (x - grey)
+    image = np.clip(np.rint(x), 0, 255).astype(np.uint8)
+    if camera.chroma_blur:
+        ycc = cv2.cvtColor(image, cv2.COLOR_RGB2YCrCb)
+        h, w = ycc.shape[:2]
+        for ch in (1, 2):
+            small = cv2.resize(ycc[..., ch], (w // 2, h // 2), interpolation=cv2.INTER_AREA)
+            ycc[..., ch] = cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
+        image = cv2.cvtColor(ycc, cv2.COLOR_YCrCb2RGB)
+    if camera.jpeg_quality:
+        _ok, data = cv2.imencode(
+            ".jpg", image[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, camera.jpeg_quality]
+        )
+        decoded = cv2.imdecode(data, cv2.IMREAD_COLOR)
+        assert decoded is not None  # OpenCV decodes what it just encoded
+        image = decoded[..., ::-1]
+    return np.ascontiguousarray(image)
+
+
+def _recentre(image: np.ndarray, size: int) -> np.ndarray:
+    """Crop ``size`` about the brightest pixel (channel sum) of the blob at the canvas
+    centre, as the tracker centres its patches: climb to the maximum of the 9×9
+    window until the centre is that maximum (at most ``_MARGIN`` px away)."""
+    s = image.shape[0]
+    lum = image.astype(np.int32).sum(axis=2)
+    c = y = x = s // 2
+    m = _MARGIN // 2
+    for _ in range(8):
+        window = lum[y - m : y + m + 1, x - m : x + m + 1]
+        dy, dx = np.unravel_index(int(np.argmax(window)), window.shape)
+        if window[dy, dx] == lum[y, x]:
+            break
+        y = int(np.clip(y - m + dy, c - _MARGIN, c + _MARGIN))
+        x = int(np.clip(x - m + dx, c - _MARGIN, c + _MARGIN))
+    h = size // 2
+    return image[y - h : y - h + size, x - h : x - h + size]
+
+
+def procedural_patches(
+    n_recordings: int, per_recording: int, size: int = 65, seed: int = 0,
+    flash_share: float = 0.5,
+) -> PatchSet:  # fmt: skip
+    """Domain-randomised labelled patches (module notes above), uint8 RGB.
+
+    Each pseudo-recording (group ``synth<seed>r<k>``) has its own `Camera`; within it
+    ``flash_share`` of the patches are flashes (on any background, sometimes with a
+    second flash nearby), the rest negatives of `NEGATIVE_KINDS` in equal shares.
+    Deterministic given ``seed``.
+    """
+    rng = np.random.default_rng(seed)
+    s = size + 2 * _MARGIN
+    c = s // 2
+    images, labels, groups = [], [], []
+    for k in range(n_recordings):
+        camera = Camera.draw(rng)
+        for i in range(per_recording):
+            canvas = _background(rng, s)
+            flash = rng.random() < flash_share
+            if flash:
+                _add_flash(rng, canvas, c + rng.uniform(-0.5, 0.5), c + rng.uniform(-0.5, 0.5))
+            else:
+                _negative(rng, canvas, NEGATIVE_KINDS[i % len(NEGATIVE_KINDS)])
+            if rng.random() < 0.1:  # another firefly in view
+                far = rng.uniform(8, size // 2, 2) * rng.choice([-1, 1], 2)
+                _add_flash(rng, canvas, c + far[0], c + far[1])
+            images.append(_recentre(_develop(rng, canvas, camera), size))
+            labels.append(int(flash))
+            groups.append(f"synth{seed}r{k}")
+    n = len(labels)
+    return PatchSet(
+        np.stack(images),
+        np.array(labels, dtype=np.int8),
+        np.array(groups),
+        np.full(n, ""),
+        np.full(n, "procedural"),
+    )
+
+
+def build_procedural_dataset(
+    out: str | Path, n_recordings: int = 12, per_recording: int = 600, size: int = 65,
+    seed: int = 0,
+) -> dict[str, object]:  # fmt: skip
+    """Write `procedural_patches` as a patch folder plus its manifest `SYNTH_MANIFEST`."""
+    out = Path(out)
+    patches = procedural_patches(n_recordings, per_recording, size, seed)
+    n = len(patches)
+    save_patch_set(patches, out, np.arange(n), np.zeros((n, 2), dtype=np.int64))
+    manifest = {
+        "made_by": "pipeline.training.simdata.build_procedural_dataset",
+        "n_recordings": n_recordings,
+        "per_recording": per_recording,
+        "patch_size": size,
+        "seed": seed,
+        "negative_kinds": list(NEGATIVE_KINDS),
+        "n_flash": int(patches.labels.sum()),
+        "n_background": int((patches.labels == 0).sum()),
+    }
+    (out / SYNTH_MANIFEST).write_text(json.dumps(manifest, indent=2) + "\n")
+    return manifest

@@ -160,10 +160,17 @@ def test_wrong_patch_size_is_refused() -> None:
 
 def test_default_model_and_card() -> None:
     classifier = FlashClassifier.load()
-    assert default_model_path().stat().st_size < 2_000_000
+    assert default_model_path().stat().st_size < 5_000_000
     assert classifier.input_size == 33
     assert 0 < classifier.threshold < 1
-    assert classifier.card.training["command"].startswith("firefly3d train-classifier")
+    training = classifier.card.training
+    assert training["command"].startswith("firefly3d train-classifier")
+    assert "--seed" in training["command"] and "--threads 1" in training["command"]
+    assert training["calibration"]["kind"] == "platt"
+    # every data folder is identified by its counts and a hash of its files
+    assert all({"counts", "sha256"} <= set(m) for m in training["data_manifests"].values())
+    held_out = classifier.card.evaluation["held_out_by_source"]
+    assert any("gp360" in source for source in held_out)
     assert classifier.predict(np.zeros((0, 33, 33, 3), np.uint8)).shape == (0,)
 
 
@@ -251,6 +258,29 @@ def test_classify_command_writes_scores_and_skips_unreadable(
     expected = classifier.predict(np.stack([images[0], images[2], images[3]]))
     got = [scores[str(a)], scores[str(big)], scores[str(single)]]
     np.testing.assert_allclose(got, expected, atol=1e-5)  # 41 px was centre-cropped
+
+
+GOPRO = SHARED / "data" / "ffeye-gp360-65"
+
+
+def test_classify_command_on_65_and_33_pixel_patches(tmp_path: Path) -> None:
+    """GoPro patches (65×65) are centre-cropped to the model's 33×33: scoring the
+    65-pixel file and its 33-pixel crop gives the same probability."""
+    files = sorted((GOPRO / "flash").glob("*.png"))[:6]
+    big = np.stack([cv2.imread(str(f))[..., ::-1] for f in files])
+    assert big.shape[1:] == (65, 65, 3)
+    small = center_crop_or_pad(big, 33)
+    for i in range(len(files)):
+        write_image(tmp_path / "p65" / f"{i}.png", big[i])
+        write_image(tmp_path / "p33" / f"{i}.png", small[i])
+    scores = {}
+    for name in ("p65", "p33"):
+        out = tmp_path / f"{name}.csv"
+        assert main(["classify", str(tmp_path / name), "--out", str(out)]) == 0
+        with out.open() as stream:
+            scores[name] = [float(row["flash_probability"]) for row in csv.DictReader(stream)]
+    np.testing.assert_allclose(scores["p65"], scores["p33"], atol=1e-6)
+    np.testing.assert_allclose(scores["p33"], FlashClassifier.load().predict(small), atol=1e-5)
 
 
 def test_classify_command_fails_when_nothing_is_readable(tmp_path: Path) -> None:

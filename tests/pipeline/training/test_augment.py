@@ -17,7 +17,7 @@ def test_no_augment_is_identity() -> None:
 
 def test_dihedral_keeps_pixels_and_centre() -> None:
     x = batch()
-    config = AugmentConfig(brightness=0, colour=0, blur=0, shift=0, noise=0, streak=0)
+    config = AugmentConfig(brightness=0, colour=0, blur=0, shift=0, noise=0, streak=0, saturation=0)
     y = augment(x, config, torch.Generator().manual_seed(1))
     assert torch.equal(y[:, :, 4, 4], x[:, :, 4, 4])
     for a, b in zip(x, y, strict=True):
@@ -54,3 +54,14 @@ def test_streak_draws_a_line_at_the_former_peak_brightness() -> None:
     torch.testing.assert_close(y[:, 0].amax(dim=(1, 2)), torch.full((100,), 0.16))
     rows = lit.any(dim=2).sum(dim=1)
     assert set(rows.tolist()) == {1, 5}  # horizontal and diagonal streaks both occur
+
+
+def test_saturation_keeps_grey_and_mixes_colour_towards_it() -> None:
+    x = batch()
+    config = replace(NO_AUGMENT, saturation=0.8)
+    y = augment(x, config, torch.Generator().manual_seed(2))
+    # the grey level is kept (up to clipping at 0 and 1)
+    assert (y.mean(dim=1) - x.mean(dim=1)).abs().mean() < 0.02
+    spread_x = (x - x.mean(dim=1, keepdim=True)).abs().sum(dim=(1, 2, 3))
+    spread_y = (y - y.mean(dim=1, keepdim=True)).abs().sum(dim=(1, 2, 3))
+    assert (spread_y < spread_x * 0.9).any() and (spread_y > spread_x * 1.05).any()

@@ -2,15 +2,32 @@ import numpy as np
 import pytest
 from scipy.special import expit
 
-from pipeline.training.calibration import choose_threshold, fit_temperature
+from pipeline.training.calibration import choose_threshold, fit_platt, reliability
 
 
-def test_temperature_recovers_overconfidence() -> None:
+def test_platt_recovers_slope_and_shift() -> None:
     rng = np.random.default_rng(0)
     true_logit = rng.normal(0, 2, 20000)
     labels = (rng.random(true_logit.size) < expit(true_logit)).astype(int)
-    overconfident = 3.0 * true_logit
-    assert fit_temperature(overconfident, labels) == pytest.approx(3.0, rel=0.05)
+    raw = 3.0 * true_logit + 1.5  # overconfident and biased towards flashes
+    platt = fit_platt(raw, labels)
+    assert platt.slope == pytest.approx(1 / 3, rel=0.05)
+    assert platt.intercept == pytest.approx(-0.5, abs=0.1)
+    bins = reliability(labels, platt(raw))
+    assert all(abs(b["predicted"] - b["observed"]) < 0.05 for b in bins if b["n"] > 500)
+    assert sum(b["n"] for b in bins) == len(labels)
+
+
+def test_platt_weights_count_each_sample_by_its_weight() -> None:
+    rng = np.random.default_rng(1)
+    z = rng.normal(0, 1, 4000)
+    labels = (rng.random(4000) < expit(z)).astype(int)
+    doubled = fit_platt(np.concatenate([z, z[:1000]]), np.concatenate([labels, labels[:1000]]))
+    weights = np.ones(4000)
+    weights[:1000] = 2
+    weighted = fit_platt(z, labels, weights)
+    assert weighted.slope == pytest.approx(doubled.slope, rel=1e-3)
+    assert weighted.intercept == pytest.approx(doubled.intercept, abs=1e-3)
 
 
 def test_threshold_maximises_accuracy() -> None:

@@ -19,6 +19,8 @@ from tests.pipeline.training.conftest import SIZE, synthetic_patches
         ("f-4607rs1203-f0009x0039y1025.png", "4607rs1203"),
         ("b-4625rs1834-f0120x0001y0002.png", "4625rs1834"),
         ("f-night-2-cam1-f0001x0002y0003.png", "night-2-cam1"),
+        ("f-gp4941-0012.png", "gp4941"),
+        ("b-gp4941-0001.png", "gp4941"),
         ("patch_0001.png", "DEFAULT"),
         ("f-4607rs1203.png", "DEFAULT"),
     ],

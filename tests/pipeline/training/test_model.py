@@ -48,5 +48,5 @@ def test_flashnet_shapes_and_calibrated_output() -> None:
     x = torch.rand(5, 3, 33, 33)
     logits = net(x)
     assert logits.shape == (5,)
-    p = CalibratedFlashNet(net, temperature=2.0)(x)
-    torch.testing.assert_close(p, torch.sigmoid(logits / 2.0))
+    p = CalibratedFlashNet(net, slope=0.5, intercept=-1.0)(x)
+    torch.testing.assert_close(p, torch.sigmoid(logits * 0.5 - 1.0))
