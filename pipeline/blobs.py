@@ -188,48 +188,53 @@ def upsample(
     return full[order], np.repeat(labels, bin_px * bin_px)[order]
 
 
-def centroid(
-    idx: NDArray[np.intp],
-    labels: NDArray[np.intp],
-    weights: NDArray[np.float64],
-    width: int,
-    bin_px: int = 1,
+def subpixel_peak(
+    image: NDArray[np.float32], peak: NDArray[np.intp], bin_px: int = 1
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Weighted centroid of each blob, in full-resolution pixels.
+    """Sub-pixel position of local maxima of a smooth, Gaussian-like image.
+
+    A Gaussian through the maximum and its two neighbours along each axis (the
+    logarithm of the values is a parabola): exact for a Gaussian spot whatever its
+    position in the pixel, so it has no pixel-locking bias, and it reads the matched
+    filter's output, which has already integrated the whole spot.
 
     Parameters
     ----------
-    idx : ndarray of int, shape (N,)
-        Flat indices ``v · W + u`` of the blobs' pixels on a grid binned by `bin_px`.
-    labels : ndarray of int, shape (N,)
-        Their blob labels ``0 .. n − 1``.
-    weights : ndarray of float, shape (N,)
-        Non-negative weights: the matched-filter response above the extent level, which
-        falls to zero at the blob's edge, so that the cut does not pull the centroid
-        toward a pixel centre.
-    width : int
-        Width ``W`` of the (binned) grid, pixels.
+    image : ndarray of float32, shape (H, W)
+        The matched-filter response (columns wrap at the 360° seam).
+    peak : ndarray of int, shape (n,)
+        Flat indices ``v · W + u`` of local maxima.
     bin_px : int
-        Bin side: bin ``(i, j)`` covers full-resolution pixels ``b·i .. b·i + b − 1``.
+        Bin side of `image`: its pixel ``(i, j)`` covers full-resolution pixels
+        ``b·i .. b·i + b − 1``.
 
     Returns
     -------
     x, y : ndarray of float, shape (n,)
-        Centroids in full-resolution pixels, ``x`` wrapped into ``[0, b · W)``.
+        Positions in full-resolution pixels, ``x`` wrapped into ``[0, b · W)``. Where a
+        neighbour is not positive (at the noise floor), the offset along that axis is 0.
     """
-    rows, cols = np.divmod(idx, width)
-    n = int(labels.max()) + 1 if len(labels) else 0
-    anchor = np.zeros(n, np.intp)
-    anchor[labels[::-1]] = cols[::-1]  # the first pixel of each blob
-    # Offsets from the anchor, wrapped, so a blob across the seam stays whole.
-    du = (cols - anchor[labels] + width // 2) % width - width // 2
-    total = np.maximum(np.bincount(labels, weights=weights, minlength=n), 1e-12)
-    x = np.mod(anchor + np.bincount(labels, weights=weights * du, minlength=n) / total, width)
-    y = np.bincount(labels, weights=weights * rows, minlength=n) / total
+    height, width = image.shape
+    rows, cols = np.divmod(peak, width)
+    centre = image[rows, cols].astype(np.float64)
+
+    def offset(before: NDArray[np.float64], after: NDArray[np.float64]) -> NDArray[np.float64]:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lb, lc, la = np.log(before), np.log(centre), np.log(after)
+            step = 0.5 * (lb - la) / (lb - 2 * lc + la)
+        usable = (before > 0) & (after > 0) & (centre > 0) & np.isfinite(step)
+        return np.where(usable, np.clip(step, -0.5, 0.5), 0.0)
+
+    left = image[rows, (cols - 1) % width].astype(np.float64)
+    right = image[rows, (cols + 1) % width].astype(np.float64)
+    up = image[np.maximum(rows - 1, 0), cols].astype(np.float64)
+    down = image[np.minimum(rows + 1, height - 1), cols].astype(np.float64)
+    dx, dy = offset(left, right), offset(up, down)
+    dy = np.where((rows == 0) | (rows == height - 1), 0.0, dy)
     full_width = width * bin_px
-    x = np.mod((x + 0.5) * bin_px - 0.5, full_width)
+    x = np.mod((cols + dx + 0.5) * bin_px - 0.5, full_width)
     x[x >= full_width] -= full_width  # mod can round a tiny negative up to exactly W
-    return x, (y + 0.5) * bin_px - 0.5
+    return x, (rows + dy + 0.5) * bin_px - 0.5
 
 
 def measure(

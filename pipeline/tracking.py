@@ -56,11 +56,11 @@ from numpy.typing import NDArray
 from pipeline.background import Lanes
 from pipeline.blobs import (
     Blobs,
-    centroid,
     label,
     local_maxima,
     measure,
     split_at_peaks,
+    subpixel_peak,
     upsample,
 )
 from pipeline.chunking import frames_read
@@ -225,9 +225,6 @@ class _FrameDetector:
         self._binned = (info.height // self._bin, info.width // self._bin)
         grid = tile_grid(self._binned, params.noise_tile_px)
         self._lanes = Lanes(self._binned, grid, info.fps, params, start)
-        # A σ = 1 px spot filtered by the matched filter is √(1 + σ_f²) px wide; the
-        # centroid window spans 3 of those, so it does not truncate the spot.
-        self._spot_radius = math.ceil(3 * math.hypot(1.0, params.matched_sigma_px))
         self._mask = np.empty(self._binned, np.bool_)
         self._dropped_by_area = 0
         self._dropped_over_cap = 0
@@ -278,14 +275,8 @@ class _FrameDetector:
         inside = np.isin(labels, keep)
         # Renumber the kept blobs 0.. in their (raster) order.
         idx, snr, labels = idx[inside], snr[inside], np.searchsorted(keep, labels[inside])
-        # Only the spot around its peak locates a candidate: a flash on the rim of a
-        # brighter glow must not be pulled toward it.
         width = self._binned[1]
-        near = _chebyshev(idx, peak[keep][labels], width) <= self._spot_radius
-        # The response above the extent level, in σ (the noise scale is nearly constant
-        # over a spot).
-        weights = np.where(near, snr - self._params.extent_threshold, 0.0)
-        x, y = centroid(idx, labels, weights, width, self._bin)
+        x, y = subpixel_peak(filtered, peak[keep], self._bin)
         full_idx, full_labels = upsample(idx, labels, width, self._bin)
         rows, cols = np.divmod(full_idx, luma.shape[1])
         values = luma[rows, cols] - background[rows // self._bin, cols // self._bin]
@@ -359,13 +350,6 @@ class _FrameDetector:
             self._dropped_over_cap += len(kept) - cap
             kept = np.sort(kept[np.argsort(-snr[kept], kind="stable")[:cap]])
         return kept
-
-
-def _chebyshev(a: NDArray[np.intp], b: NDArray[np.intp], width: int) -> NDArray[np.intp]:
-    """Chessboard distance between flat pixel indices, columns wrapping at the seam."""
-    (ra, ca), (rb, cb) = np.divmod(a, width), np.divmod(b, width)
-    dc = np.abs(ca - cb)
-    return np.maximum(np.abs(ra - rb), np.minimum(dc, width - dc))
 
 
 def _blur(y: NDArray[np.uint8], sigma: float) -> NDArray[np.uint8]:

@@ -101,7 +101,10 @@ def _centroid_errors(detections: Detections, truth: NDArray[np.float64]) -> NDAr
 def test_spots_are_found_once_with_subpixel_centroids(spots: Scene, background: str) -> None:
     params = FAST.model_copy(update={"background": background})
     error = _centroid_errors(track(spots.info, params=params), spots.truth)
-    assert error.max() < 0.2
+    # Within 3 px of a pole the filter's replicated border row bends the spot.
+    near_pole = np.minimum(spots.truth[:, 2], H - 1 - spots.truth[:, 2]) < 3
+    assert error[~near_pole].max() < 0.1
+    assert error[near_pole].max() < 0.3
 
 
 def test_blurred_tracking_keeps_subpixel_centroids(spots: Scene) -> None:
@@ -109,8 +112,8 @@ def test_blurred_tracking_keeps_subpixel_centroids(spots: Scene) -> None:
     error = _centroid_errors(track(spots.info, params=params), spots.truth)
     # The blur widens spots to σ ≈ 1.4 px; near a pole their tail is cut by the frame edge.
     near_pole = np.minimum(spots.truth[:, 2], H - 1 - spots.truth[:, 2]) < 3
-    assert error[~near_pole].max() < 0.2
-    assert error[near_pole].max() < 0.3
+    assert error[~near_pole].max() < 0.1
+    assert error[near_pole].max() < 0.75
 
 
 def test_blob_measurements(spots: Scene) -> None:
