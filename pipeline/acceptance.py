@@ -15,7 +15,8 @@ Step 1, per camera (`assess`), from the candidate alone:
 Step 2, across the cameras (`confirm`), once the delay and the pose are known: a
 doubtful candidate is a flash when it matches a candidate of the other camera within
 the triangulation gates and either the 3D point links into a streak of at least
-``min_streak`` frames or both candidates stand ``stereo_snr`` σ above the noise.
+``min_streak`` frames that somewhere stands ``streak_peak_snr`` σ above the noise in
+both cameras, or both candidates stand ``stereo_snr`` σ above the noise.
 Noise, glints and faint artifacts almost never agree between two cameras in 3D over
 several consecutive frames, nor does noise reach 6 σ in both at a consistent bearing;
 a faint distant firefly does (simulated hard night, 640 px: 468 true and 9 false
@@ -270,7 +271,12 @@ def confirm(
         streak = link(points, fps, linking).streak_id
         length = np.bincount(streak) if len(streak) else np.zeros(0, np.int64)
         weaker = np.fmin(det1.snr[rows1[points.index1]], det2.snr[rows2[points.index2]])
-        good = (length[streak] >= params.min_streak) | ~(weaker < params.stereo_snr)
+        # A flash's streak peaks; wind-shaken leaves agree in 3D frame after frame
+        # too, but stay faint.
+        peak = np.zeros(len(length))
+        np.fmax.at(peak, streak, np.nan_to_num(weaker, nan=np.inf))
+        streaky = (length[streak] >= params.min_streak) & (peak[streak] >= params.streak_peak_snr)
+        good = streaky | ~(weaker < params.stereo_snr)
         if params.anchored:
             sure = ev1.confident[rows1[points.index1]] | ev2.confident[rows2[points.index2]]
             anchored = np.zeros(len(length), bool)

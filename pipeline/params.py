@@ -434,6 +434,13 @@ class AcceptanceParams(BaseModel):
         description="A doubtful candidate is confirmed when its stereo match links into a 3D "
         "streak of at least this many frames.",
     )
+    streak_peak_snr: float = Field(
+        5.0,
+        ge=0,
+        description="…of which at least one frame stands this many σ above the noise in both "
+        "cameras (a flash rises to a peak; wind-shaken leaves agree in 3D frame after frame "
+        "but stay faint).",
+    )
     stereo_snr: float = Field(
         6.0,
         ge=0,

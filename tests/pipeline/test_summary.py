@@ -23,6 +23,9 @@ def test_summary_gathers_counts_calibration_tracking_warnings_and_timings() -> N
             ["low confidence"],
         ),
         Unit("merge", 1): StageResult({"n_candidates": 80, "tracking": tracking, "seconds": 0.2}),
+        Unit("accept"): StageResult(
+            {"cam1": {"accepted": 52, "accepted_stereo": 4}, "cam2": {"accepted": 47}}
+        ),
         Unit("pose"): StageResult(
             {
                 "n_calibration_pairs": 30,
@@ -37,9 +40,9 @@ def test_summary_gathers_counts_calibration_tracking_warnings_and_timings() -> N
     summary = summarise(records, ProcessParams())
     assert summary["counts"] == {
         "candidates_cam1": 80,
-        "flashes_cam1": 50,
+        "flashes_cam1": 52,
         "candidates_cam2": None,
-        "flashes_cam2": 45,
+        "flashes_cam2": 47,
         "calibration_pairs": 30,
         "calibration_inliers": 28,
         "points": 40,
@@ -49,6 +52,7 @@ def test_summary_gathers_counts_calibration_tracking_warnings_and_timings() -> N
     assert (summary["delay_frames"], summary["delay_confidence"]) == (-4, 0.9)
     assert summary["translation"] == [0, 1, 0] and summary["residuals"] == {"median_deg": 0.01}
     assert summary["tracking"] == {"cam1": tracking}
+    assert summary["acceptance"]["cam1"] == {"accepted": 52, "accepted_stereo": 4}
     assert summary["warnings"] == ["low confidence", "few inliers"]  # in pipeline order
     assert summary["timings_s"]["track_cam1"] == 3.0 and summary["timings_s"]["link"] == 0.1
     assert summary["parameters"] == ProcessParams().model_dump(mode="json")
@@ -58,3 +62,4 @@ def test_summary_of_a_run_that_has_not_started_is_empty_but_complete() -> None:
     summary = summarise({}, ProcessParams())
     assert summary["counts"]["points"] is None and summary["delay_frames"] is None
     assert summary["warnings"] == [] and summary["tracking"] == {}
+    assert summary["acceptance"] is None
