@@ -203,9 +203,10 @@ def assess(
         likely = probability >= threshold
     verdict = np.where(likely & snr_ok, Verdict.CONFIDENT, Verdict.DOUBTFUL)
     verdict = np.where(unlikely, Verdict.CLASSIFIER, verdict)
-    verdict = np.where(lit > params.max_flash_s * fps, Verdict.STEADY, verdict)
     flicker_mask = flickering(candidates.frame, candidates.x, candidates.y, width, fps, flicker)
     verdict = np.where(flicker_mask, Verdict.FLICKER, verdict)
+    # A spot lit without a break also flickers by the duty measure; say the specific why.
+    verdict = np.where(lit > params.max_flash_s * fps, Verdict.STEADY, verdict)
     return Evidence(verdict.astype(np.int8), lit)
 
 
