@@ -265,6 +265,14 @@ class PoseParams(BaseModel):
         le=1,
         description="Below this fraction of inliers the estimate carries a warning.",
     )
+    max_median_residual_px: float = Field(
+        default=0.25,
+        gt=0,
+        description="Above this median inlier residual, in pixels of angle (360° / width), "
+        "the estimate carries a warning: good fits measure 0.05–0.1 px on simulated nights; "
+        "a held-out windy night whose glint-contaminated pairs gave a pose 16.6° off "
+        "measured 0.53 px with 55 % inliers.",
+    )
 
     @model_validator(mode="after")
     def _ordered_thresholds(self) -> PoseParams:

@@ -359,6 +359,20 @@ def _summarise(
     )
 
 
+def fit_warnings(estimate: PoseEstimate, width: int, params: PoseParams) -> list[str]:
+    """Warnings on how well the pose fits its inliers, in pixels of angle of a frame
+    `width` pixels wide (a residual is only small or large against the pixel)."""
+    median_px = estimate.stats.get("median_deg", 0.0) * width / 360.0
+    if median_px <= params.max_median_residual_px:
+        return []
+    return [
+        f"the pose fits its calibration pairs poorly (median residual {median_px:.2f} px, "
+        f"good fits measure about 0.1 px): the 3D results may be wrong; the confident "
+        "flashes may include artifacts (try a higher acceptance.confident_snr or "
+        "classifier.threshold)"
+    ]
+
+
 def _describe(values: FloatArray, unit: str) -> dict[str, float]:
     return {
         f"median_{unit}": float(np.median(values)),

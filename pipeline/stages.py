@@ -40,7 +40,7 @@ from pipeline.detections import Detections
 from pipeline.graph import StageContext, StageResult, earlier_units, read_record
 from pipeline.jsonio import read_json, write_json
 from pipeline.params import ClassifierParams, validate_separation
-from pipeline.pose import calibration_pairs, estimate_pose
+from pipeline.pose import calibration_pairs, estimate_pose, fit_warnings
 from pipeline.probe import StereoProbe
 from pipeline.results import (
     Calibration,
@@ -286,6 +286,7 @@ def pose(ctx: StageContext) -> StageResult:
     det1, det2 = _confident(ctx)
     pairs = calibration_pairs(det1, det2, int(delay["delay_frames"]), probe.width)
     estimate = estimate_pose(pairs, ctx.params.pose)
+    warnings = [*estimate.warnings, *fit_warnings(estimate, probe.width, ctx.params.pose)]
     np.savez_compressed(
         ctx.path(CALIBRATION_PAIRS_NPZ),
         frame1=pairs.frame1,
@@ -309,7 +310,7 @@ def pose(ctx: StageContext) -> StageResult:
             "n_calibration_inliers": estimate.n_inliers,
             "residuals": estimate.stats,
             "camera_height_m": ctx.camera_height_m,
-            "warnings": [*delay.get("warnings", []), *estimate.warnings],
+            "warnings": [*delay.get("warnings", []), *warnings],
         },
     )
     metrics = {
@@ -319,7 +320,7 @@ def pose(ctx: StageContext) -> StageResult:
         "translation": estimate.pose.translation.tolist(),
         "residuals": estimate.stats,
     }
-    return StageResult(metrics=metrics, warnings=list(estimate.warnings))
+    return StageResult(metrics=metrics, warnings=warnings)
 
 
 def accept(ctx: StageContext) -> StageResult:

@@ -11,6 +11,7 @@ from pipeline.pose import (
     calibration_pairs,
     essential_matrix_pose,
     estimate_pose,
+    fit_warnings,
 )
 
 SEPARATION = 1.5
@@ -182,3 +183,16 @@ def test_bad_width_raises() -> None:
     det = Detections.from_columns([0], [1.0], [1.0])
     with pytest.raises(ValueError, match="width"):
         calibration_pairs(det, det, 0, 641)
+
+
+def test_a_pose_that_fits_its_pairs_poorly_is_flagged_against_the_pixel() -> None:
+    rng = np.random.default_rng(5)
+    _, _, b1, b2 = scene(rng, [0, 1, 0])
+    sharp = estimate_pose(CalibrationPairs(np.arange(len(b1)), jitter(rng, b1, 0.03), b2))
+    blurred = estimate_pose(CalibrationPairs(np.arange(len(b1)), jitter(rng, b1, 0.4), b2))
+    # Median residuals: 0.015° and 0.19°, i.e. 0.03 and 0.34 px at 640 px, and the
+    # second only 0.08 px of a 160-px frame's coarser pixels.
+    assert fit_warnings(sharp, WIDTH, PoseParams()) == []
+    (warning,) = fit_warnings(blurred, WIDTH, PoseParams())
+    assert "fits its calibration pairs poorly" in warning
+    assert fit_warnings(blurred, 160, PoseParams()) == []
