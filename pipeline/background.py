@@ -17,7 +17,8 @@ Models (`TrackingParams.background`)
 ``"box"``
     The mean of the ``L = τ · fps`` frames before ``k``, from integer sums (exact
     whatever frame it is started on). One lane; its noise window needs another ``L``
-    frames, so a range decodes ``2L`` frames before its start (`frames_read`).
+    frames (sampled every other frame), so a range decodes ``2L + 2`` frames before its
+    start (`frames_read`).
 """
 
 from __future__ import annotations
@@ -120,7 +121,6 @@ class Lanes:
     ) -> None:
         self._shape = shape
         self._noise_shape = noise_shape
-        self._params = params
         self._window = box_length(fps, params)
         if params.background == "box":
             self._block = self._warmup = 0

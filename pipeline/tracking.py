@@ -2,21 +2,24 @@
 
 For every frame ``k`` of a camera, with luminance ``Y_k`` (0–255):
 
-1. foreground ``F_k = Y_k − B_k`` (signed), where the background ``B_k`` is built from
+1. ``Y_k`` averaged over ``b × b`` bins at high resolution (2 × 2 at 4K), and the
+   foreground ``F_k = Y_k − B_k`` (signed), where the background ``B_k`` is built from
    frames before ``k`` only, so a flash does not dim itself (`pipeline.background`);
-2. the matched filter: ``F_k`` averaged over ``b × b`` bins at high resolution, then
-   filtered with a Gaussian the size of a point flash (`pipeline.matched_filter`);
+2. the matched filter: ``F_k`` filtered with a Gaussian the size of a point flash
+   (`pipeline.matched_filter`);
 3. the noise ``σ`` of the filtered foreground per tile, running over the last ``τ`` of
    frames and measured on its negative half, which flashes cannot inflate
    (`pipeline.noise`), floored per pixel at ``min_noise + relative_noise · B`` (a
    bright static light jitters more than the dark sky around it);
 4. hysteresis in units of ``σ``: 8-connected blobs of the pixels above
-   ``extent_threshold · σ`` (the 360° seam included: column ``W − 1`` touches column 0),
-   kept when one of their pixels reaches ``threshold · σ``;
-5. per blob, at full resolution: the foreground-weighted centroid ``(x, y) = (u, v)``
-   in pixels (pixel centres at integers, ``x`` wrapped into ``[0, W)``), its area, its
-   peak foreground, its SNR (largest filtered response in ``σ``) and its brightest
-   luminance pixel (``peak_x``, ``peak_y``: where its classifier patch is centred);
+   ``extent_threshold · σ`` (the 360° seam included: column ``W − 1`` touches column 0);
+   each local maximum reaching ``threshold · σ`` is a candidate, and a blob holding
+   several is split between them (one larger than ``max_area`` is dropped whole);
+5. per candidate: the sub-pixel position ``(x, y) = (u, v)`` of its peak, from a
+   Gaussian through the filter's response (pixel centres at integers, ``x`` wrapped into
+   ``[0, W)``), and at full resolution its area, its peak foreground, its SNR (largest
+   filtered response in ``σ``) and its brightest luminance pixel (``peak_x``,
+   ``peak_y``: where its classifier patch is centred);
 6. optionally, the flash probability of an RGB patch around that brightest pixel.
 
 Exact chunking
@@ -27,17 +30,18 @@ they restart on a fixed global grid (`pipeline.background.Lanes`): block ``j`` (
 ``[jB, (j+1)B)``, ``B = block_s · fps``) is always analysed by a lane started at frame
 ``max(0, jB − Wu)`` (``Wu = warmup_tau · τ · fps``), in chunked and unchunked runs
 alike; during the last ``Wu`` frames of a block the next block's lane warms up
-alongside. Any range is then exact by construction. The ``"box"`` model needs ``2L``
-frames before ``a`` instead (``L`` for the mean, ``L`` for its noise window).
+alongside. Any range is then exact by construction. The ``"box"`` model needs ``2L + 2``
+frames before ``a`` instead (``L`` for the mean, ``L + 2`` for its noise window).
 `frames_read` tells which frames a range decodes.
 
 Cost per frame
 --------------
-Six full-frame passes (OpenCV, vectorised): the foreground, the binning, the filter,
-the noise tile means, the threshold comparison and the EWMA update; at 4K the last
-four run on the 2 × 2-binned image. Everything after that (labelling as a sparse graph
-of the candidate pixels with `scipy.sparse.csgraph`, centroids) touches the candidate
-pixels only. Candidates are classified in batches of `CLASSIFY_BATCH` patches gathered
+One full-resolution pass (the binning, at 4K); then, on the binned image, the
+foreground, the filter, the noise tile means (every other frame), the noise map, the
+threshold comparison and the EWMA update (OpenCV, vectorised). Everything after that
+(labelling as a sparse graph of the candidate pixels with `scipy.sparse.csgraph`, local
+maxima, sub-pixel peaks) touches the candidate pixels only: 0.76 × decode-only
+throughput at 3840 × 1920 without the classifier (`bench/bench_tracking.py`). Candidates are classified in batches of `CLASSIFY_BATCH` patches gathered
 across frames.
 """
 
