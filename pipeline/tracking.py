@@ -41,8 +41,8 @@ foreground, the filter, the noise tile means (every other frame), the noise map,
 threshold comparison and the EWMA update (OpenCV, vectorised). Everything after that
 (labelling as a sparse graph of the candidate pixels with `scipy.sparse.csgraph`, local
 maxima, sub-pixel peaks) touches the candidate pixels only: 0.76 × decode-only
-throughput at 3840 × 1920 without the classifier (`bench/bench_tracking.py`). Candidates are classified in batches of `CLASSIFY_BATCH` patches gathered
-across frames.
+throughput at 3840 × 1920 without the classifier (`bench/bench_tracking.py`).
+Candidates are classified in batches of `CLASSIFY_BATCH` patches gathered across frames.
 """
 
 from __future__ import annotations
