@@ -35,10 +35,9 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from pipeline.detections import Detections
-from pipeline.flicker import flickering
+from pipeline.flicker import flickering, spot_tree
 from pipeline.geometry import Pose
 from pipeline.params import AcceptanceParams, FlickerParams, LinkingParams, TriangulationParams
 from pipeline.trajectories import link
@@ -140,14 +139,8 @@ def steady_frames(
     n = len(frame)
     if n == 0:
         return np.zeros(0, np.int64)
-    radius_px = radius_deg * width / 360.0
-    period = width / radius_px
-    # Unit Chebyshev ball: consecutive frames are 1 apart in t, frames further apart not.
-    t = np.asarray(frame, dtype=np.float64)
-    u = np.minimum(np.mod(np.asarray(x, np.float64), width) / radius_px, np.nextafter(period, 0))
-    v = np.asarray(y, np.float64) / radius_px
-    v = v - v.min()
-    tree = cKDTree(np.column_stack([t, u, v]), boxsize=[t.max() + 3.0, period, v.max() + 3.0])
+    # Consecutive frames are 1 apart in time, frames further apart are not neighbours.
+    tree = spot_tree(np.asarray(frame, dtype=np.float64), x, y, width, radius_deg)
     pairs = tree.query_pairs(r=1.0, p=np.inf, output_type="ndarray")
     graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
     _, chain = connected_components(graph, directed=False)

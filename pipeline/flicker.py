@@ -56,21 +56,42 @@ def flicker_duty(
     n = len(frame)
     if n == 0:
         return np.zeros(0)
-    radius_px = radius_deg * width / 360.0
     half = max(1, round(window_s * fps / 2))
-    # Scaled so the neighbourhood is the unit Chebyshev ball; x is periodic (the seam),
-    # frame and y get boxes wider than their range plus the radius so they never wrap.
-    t = np.asarray(frame, dtype=np.float64) / half
+    tree = spot_tree(np.asarray(frame, dtype=np.float64) / half, x, y, width, radius_deg)
+    counts = tree.query_ball_point(tree.data, r=1.0, p=np.inf, return_length=True)
+    return np.asarray(counts, dtype=np.float64) / (2 * half + 1)
+
+
+def spot_tree(
+    t: NDArray[np.floating],
+    x: NDArray[np.floating],
+    y: NDArray[np.floating],
+    width: int,
+    radius_deg: float,
+) -> cKDTree:
+    """A KD-tree of candidates in which "same spot, nearby time" is the unit Chebyshev ball.
+
+    Parameters
+    ----------
+    t : ndarray of float, shape (N,)
+        Time, non-negative, already scaled so that the time neighbourhood is 1.
+    x, y : ndarray of float, shape (N,)
+        Pixel coordinates, ``0 <= x < width``; ``x`` is periodic (the 360° seam).
+    width : int
+        Frame width in pixels.
+    radius_deg : float
+        Spatial radius in degrees (``width / 360`` pixels per degree).
+    """
+    radius_px = radius_deg * width / 360.0
     period = width / radius_px
     u = np.minimum(
         np.mod(np.asarray(x, dtype=np.float64), width) / radius_px, np.nextafter(period, 0)
     )
     v = np.asarray(y, dtype=np.float64) / radius_px
     v = v - v.min()
-    box = [t.max() + 2.0, period, v.max() + 2.0]
-    tree = cKDTree(np.column_stack([t, u, v]), boxsize=box)
-    counts = tree.query_ball_point(tree.data, r=1.0, p=np.inf, return_length=True)
-    return np.asarray(counts, dtype=np.float64) / (2 * half + 1)
+    # Time and y get boxes wider than their range plus the radius, so they never wrap.
+    box = [float(np.max(t)) + 2.0, period, float(v.max()) + 2.0]
+    return cKDTree(np.column_stack([np.asarray(t, dtype=np.float64), u, v]), boxsize=box)
 
 
 def flickering(
