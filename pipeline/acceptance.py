@@ -278,8 +278,9 @@ def confirm(
             good &= anchored[streak]
         confirmed[0][rows1[points.index1[good]]] = True
         confirmed[1][rows2[points.index2[good]]] = True
-    stereo1 = confirmed[0] & ~ev1.confident & ev1.plausible
-    stereo2 = confirmed[1] & ~ev2.confident & ev2.plausible
+    # Only plausible rows were matched, so the confirmed non-confident ones are doubtful.
+    stereo1 = confirmed[0] & ~ev1.confident
+    stereo2 = confirmed[1] & ~ev2.confident
     return Confirmation(
         accepted1=ev1.confident | stereo1,
         accepted2=ev2.confident | stereo2,
