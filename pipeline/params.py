@@ -273,6 +273,21 @@ class PoseParams(BaseModel):
         "a held-out windy night whose glint-contaminated pairs gave a pose 16.6° off "
         "measured 0.53 px with 55 % inliers.",
     )
+    max_rotation_se_deg: float = Field(
+        default=0.3,
+        gt=0,
+        description="Above this standard error of the rotation (degrees, from the fit's "
+        "Jacobian) the estimate carries a warning: on simulated hard nights (tuning seeds) "
+        "good fits measured 0.07–0.18°, the three wrong ones (3–21° off, fitting their "
+        "pairs to 0.04–0.09 px) 0.6–1.6°.",
+    )
+    refit_snr: tuple[float, ...] = Field(
+        default=(12.0, 16.0, 24.0),
+        description="A fit with warnings (few inliers, or a median residual above "
+        "max_median_residual_px) is refitted from the flashes at or above each of these "
+        "SNRs (σ) in turn, the first fit without warnings kept: glints through swaying "
+        "leaves pass as flashes near the confident floor and pull the pose. Empty: no refit.",
+    )
 
     @model_validator(mode="after")
     def _ordered_thresholds(self) -> PoseParams:

@@ -33,6 +33,7 @@ singularity near the start.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -54,6 +55,9 @@ _MAD_TO_SIGMA = 1.4826
 _GRADUATED_SCALES_DEG = (10.0, 3.0, 1.0)
 #: Evaluation budget of each graduated step: a start in the wrong basin stops early.
 _START_NFEV = 100
+#: Central-difference step of `rotation_standard_error` (radians, ~0.0006°): small
+#: against good fits' residuals (~0.03°) so the gaps' kink at zero barely matters.
+_JACOBIAN_STEP_RAD = 1e-5
 
 
 class PoseError(ValueError):
@@ -274,6 +278,18 @@ def _fit(
     max_nfev: int | None = None,
 ) -> tuple[Pose, float]:
     """Local least-squares fit of the pose from ``start``; returns the pose and its cost."""
+    pose_of = _local_parameters(start)
+
+    def residuals(p: FloatArray) -> FloatArray:
+        return normalised_gap(closest_approach(b1, b2, pose_of(p)))
+
+    result = least_squares(residuals, np.zeros(5), loss=loss, f_scale=scale, max_nfev=max_nfev)
+    return pose_of(result.x), float(result.cost)
+
+
+def _local_parameters(start: Pose) -> Callable[[FloatArray], Pose]:
+    """Poses near ``start`` as a function of 5 parameters: a rotation vector applied to its
+    rotation, and a 2-vector in the plane orthogonal to its translation."""
     r0, t0 = start.rotation, start.translation
     # Orthonormal basis of the plane orthogonal to t0: the translation's two freedoms.
     basis = np.linalg.svd(t0[None, :])[2][1:].T
@@ -281,11 +297,46 @@ def _fit(
     def pose_of(p: FloatArray) -> Pose:
         return Pose(Rotation.from_rotvec(p[:3]).as_matrix() @ r0, t0 + basis @ p[3:])
 
-    def residuals(p: FloatArray) -> FloatArray:
-        return normalised_gap(closest_approach(b1, b2, pose_of(p)))
+    return pose_of
 
-    result = least_squares(residuals, np.zeros(5), loss=loss, f_scale=scale, max_nfev=max_nfev)
-    return pose_of(result.x), float(result.cost)
+
+def rotation_standard_error(bearing1: FloatArray, bearing2: FloatArray, pose: Pose) -> float:
+    """Standard error of the pose's rotation about its worst-determined axis, in degrees.
+
+    The covariance of the 5 pose parameters is ``s² (JᵀJ)⁻¹``, with ``J`` the Jacobian of
+    the pairs' depth-normalised gaps (central differences) and ``s²`` their residual
+    variance (``N − 5`` degrees of freedom). Pairs that leave a rotation unconstrained
+    (few, or all in nearly one plane through the baseline) give a large error however
+    small their residuals: a pose can fit such pairs well and still be wrong.
+
+    Parameters
+    ----------
+    bearing1, bearing2 : ndarray of float64, shape (N, 3)
+        Unit bearings of the pairs the pose was fitted on (its inliers).
+    pose : Pose
+        The fitted pose.
+
+    Returns
+    -------
+    float
+        Degrees; ``inf`` with 5 pairs or fewer.
+    """
+    n = len(bearing1)
+    if n <= 5:
+        return float("inf")
+    pose_of = _local_parameters(pose)
+
+    def residuals(p: FloatArray) -> FloatArray:
+        return normalised_gap(closest_approach(bearing1, bearing2, pose_of(p)))
+
+    steps = _JACOBIAN_STEP_RAD * np.eye(5)
+    jacobian = np.column_stack(
+        [(residuals(step) - residuals(-step)) / (2 * _JACOBIAN_STEP_RAD) for step in steps]
+    )
+    variance = float(np.sum(residuals(np.zeros(5)) ** 2)) / (n - 5)
+    covariance = variance * np.linalg.pinv(jacobian.T @ jacobian)
+    worst = float(np.linalg.eigvalsh(covariance[:3, :3]).max())
+    return float(np.degrees(np.sqrt(max(worst, 0.0))))
 
 
 def _threshold(residuals: FloatArray, params: PoseParams) -> float:
@@ -339,6 +390,7 @@ def _summarise(
     stats = {
         **_describe(residuals[inliers], "deg"),
         **_describe(rays.gap[inliers], "gap"),
+        "rotation_se_deg": rotation_standard_error(b1[inliers], b2[inliers], pose),
     }
     warnings = []
     if n_in < params.min_inlier_fraction * n:
@@ -359,18 +411,126 @@ def _summarise(
     )
 
 
+def median_residual_px(estimate: PoseEstimate, width: int) -> float:
+    """Median inlier residual in pixels of angle of a frame `width` pixels wide."""
+    return estimate.stats.get("median_deg", 0.0) * width / 360.0
+
+
 def fit_warnings(estimate: PoseEstimate, width: int, params: PoseParams) -> list[str]:
     """Warnings on how well the pose fits its inliers, in pixels of angle of a frame
     `width` pixels wide (a residual is only small or large against the pixel)."""
-    median_px = estimate.stats.get("median_deg", 0.0) * width / 360.0
-    if median_px <= params.max_median_residual_px:
-        return []
-    return [
-        f"the pose fits its calibration pairs poorly (median residual {median_px:.2f} px, "
-        f"good fits measure about 0.1 px): the 3D results may be wrong; the confident "
-        "flashes may include artifacts (try a higher acceptance.confident_snr or "
-        "classifier.threshold)"
-    ]
+    warnings = []
+    median_px = median_residual_px(estimate, width)
+    if median_px > params.max_median_residual_px:
+        warnings.append(
+            f"the pose fits its calibration pairs poorly (median residual {median_px:.2f} px, "
+            f"good fits measure about 0.1 px): the 3D results may be wrong; the confident "
+            "flashes may include artifacts (try a higher acceptance.confident_snr or "
+            "classifier.threshold)"
+        )
+    se = estimate.stats.get("rotation_se_deg", 0.0)
+    if se > params.max_rotation_se_deg:
+        warnings.append(
+            f"the pose is poorly determined (rotation standard error {se:.2f}°, good fits "
+            f"measure under 0.2°) by its {estimate.n_inliers} calibration pairs: the 3D "
+            "results may be wrong; a longer recording, or flashes above and below the "
+            "horizon, would constrain it"
+        )
+    return warnings
+
+
+@dataclass(frozen=True)
+class Calibrated:
+    """Result of `calibrate_pose`.
+
+    Attributes
+    ----------
+    estimate : PoseEstimate
+        The pose kept.
+    pairs : CalibrationPairs
+        The calibration pairs it was fitted on.
+    min_snr : float or None
+        SNR floor of the flashes those pairs were made of; None: every flash given.
+    warnings : list of str
+        The estimate's warnings and `fit_warnings`.
+    tried : list of dict
+        Every fit tried, in order: ``min_snr``, ``n_pairs``, ``n_inliers``,
+        ``median_residual_px`` (or ``error`` when no pose could be fitted).
+    """
+
+    estimate: PoseEstimate
+    pairs: CalibrationPairs
+    min_snr: float | None
+    warnings: list[str]
+    tried: list[dict[str, Any]]
+
+
+def calibrate_pose(
+    det1: Detections,
+    det2: Detections,
+    delay_frames: int,
+    width: int,
+    params: PoseParams = PoseParams(),  # noqa: B008 - frozen, immutable default
+) -> Calibrated:
+    """Relative pose from the given flashes; a doubtful fit is refitted from brighter ones.
+
+    Artifacts that pass as flashes (glints through swaying leaves) pair with flashes of
+    the other camera and can pull the fit into a wrong pose that fits its pairs poorly
+    (`fit_warnings`) or keeps few inliers. Such a fit is refitted from the flashes at or
+    above each SNR of ``params.refit_snr`` in turn: the first fit without warnings is
+    kept, else the one with the fewest, then the smallest median residual (its warnings
+    kept).
+
+    Parameters
+    ----------
+    det1, det2 : Detections
+        Flashes of camera 1 and camera 2 (pixels; ``snr`` in units of the noise σ).
+    delay_frames : int
+        ``dk``: camera-1 frame ``k`` is camera-2 frame ``k + dk``.
+    width : int
+        Frame width in pixels.
+    params : PoseParams
+        Fit parameters, the warning levels and the refit SNR floors.
+
+    Raises
+    ------
+    PoseError
+        If no pose can be fitted from the flashes given (too few pairs or inliers).
+    """
+    best: Calibrated | None = None
+    tried: list[dict[str, Any]] = []
+    for min_snr in (None, *params.refit_snr):
+        sel1, sel2 = (d if min_snr is None else d.select(d.snr >= min_snr) for d in (det1, det2))
+        pairs = calibration_pairs(sel1, sel2, delay_frames, width)
+        try:
+            estimate = estimate_pose(pairs, params)
+        except PoseError as error:
+            if best is None:
+                raise
+            tried.append({"min_snr": min_snr, "n_pairs": len(pairs), "error": str(error)})
+            break  # brighter floors only leave fewer pairs
+        warnings = [*estimate.warnings, *fit_warnings(estimate, width, params)]
+        residual = median_residual_px(estimate, width)
+        tried.append(
+            {
+                "min_snr": min_snr,
+                "n_pairs": estimate.n_pairs,
+                "n_inliers": estimate.n_inliers,
+                "median_residual_px": residual,
+            }
+        )
+        fit = Calibrated(estimate, pairs, min_snr, warnings, tried)
+        if not warnings:
+            return fit
+        if best is None or _doubt(fit, width) < _doubt(best, width):
+            best = fit
+    assert best is not None  # the first fit either succeeded or raised
+    return best
+
+
+def _doubt(fit: Calibrated, width: int) -> tuple[int, float]:
+    """Order of preference among fits with warnings: fewer warnings, then smaller residual."""
+    return len(fit.warnings), median_residual_px(fit.estimate, width)
 
 
 def _describe(values: FloatArray, unit: str) -> dict[str, float]:

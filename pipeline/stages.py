@@ -40,7 +40,7 @@ from pipeline.detections import Detections
 from pipeline.graph import StageContext, StageResult, earlier_units, read_record
 from pipeline.jsonio import read_json, write_json
 from pipeline.params import ClassifierParams, validate_separation
-from pipeline.pose import calibration_pairs, estimate_pose, fit_warnings
+from pipeline.pose import calibrate_pose
 from pipeline.probe import StereoProbe
 from pipeline.results import (
     Calibration,
@@ -284,12 +284,11 @@ def pose(ctx: StageContext) -> StageResult:
     probe = ctx.probe
     delay = read_json(ctx.path(SYNC_JSON))
     det1, det2 = _confident(ctx)
-    pairs = calibration_pairs(det1, det2, int(delay["delay_frames"]), probe.width)
-    estimate = estimate_pose(pairs, ctx.params.pose)
-    warnings = [*estimate.warnings, *fit_warnings(estimate, probe.width, ctx.params.pose)]
+    fit = calibrate_pose(det1, det2, int(delay["delay_frames"]), probe.width, ctx.params.pose)
+    estimate, warnings = fit.estimate, fit.warnings
     np.savez_compressed(
         ctx.path(CALIBRATION_PAIRS_NPZ),
-        frame1=pairs.frame1,
+        frame1=fit.pairs.frame1,
         residuals=estimate.residuals,
         inliers=estimate.inliers,
     )
@@ -309,6 +308,8 @@ def pose(ctx: StageContext) -> StageResult:
             "n_calibration_pairs": estimate.n_pairs,
             "n_calibration_inliers": estimate.n_inliers,
             "residuals": estimate.stats,
+            "calibration_min_snr": fit.min_snr,
+            "pose_fits": fit.tried,
             "camera_height_m": ctx.camera_height_m,
             "warnings": [*delay.get("warnings", []), *warnings],
         },
@@ -319,6 +320,7 @@ def pose(ctx: StageContext) -> StageResult:
         "rotation": estimate.pose.rotation.tolist(),
         "translation": estimate.pose.translation.tolist(),
         "residuals": estimate.stats,
+        "calibration_min_snr": fit.min_snr,
     }
     return StageResult(metrics=metrics, warnings=warnings)
 

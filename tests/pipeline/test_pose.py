@@ -8,6 +8,7 @@ from pipeline.params import PoseParams
 from pipeline.pose import (
     CalibrationPairs,
     PoseError,
+    calibrate_pose,
     calibration_pairs,
     essential_matrix_pose,
     estimate_pose,
@@ -196,3 +197,88 @@ def test_a_pose_that_fits_its_pairs_poorly_is_flagged_against_the_pixel() -> Non
     (warning,) = fit_warnings(blurred, WIDTH, PoseParams())
     assert "fits its calibration pairs poorly" in warning
     assert fit_warnings(blurred, 160, PoseParams()) == []
+
+
+def night_detections(b1: np.ndarray, b2: np.ndarray, snr: np.ndarray) -> tuple[Detections, ...]:
+    """One detection per frame and camera at these bearings, with these SNRs."""
+    frames = np.arange(len(b1))
+    return tuple(
+        Detections.from_columns(frames, *bearing_to_pixel(b, WIDTH), snr=snr) for b in (b1, b2)
+    )
+
+
+def test_a_pose_pulled_by_faint_artifacts_is_refitted_from_the_bright_flashes() -> None:
+    rng = np.random.default_rng(7)
+    truth, _, b1, b2 = scene(rng, [0, 1, 0], n=300)
+    b1 = jitter(rng, b1, 0.02)
+    # 60 % of the frames pair a flash with an unrelated spot near the confident floor.
+    n_bad = 180
+    b2 = b2.copy()
+    b2[:n_bad] = b2[rng.permutation(n_bad)]
+    snr = np.where(np.arange(len(b1)) < n_bad, 9.0, 20.0)
+    det1, det2 = night_detections(b1, b2, snr)
+
+    plain = calibrate_pose(det1, det2, 0, WIDTH, PoseParams(refit_snr=()))
+    fit = calibrate_pose(det1, det2, 0, WIDTH)
+
+    assert plain.min_snr is None and plain.warnings
+    assert fit.min_snr == 12.0 and fit.warnings == []
+    assert fit.estimate.n_pairs == len(b1) - n_bad
+    assert [t["min_snr"] for t in fit.tried] == [None, 12.0]
+    assert max(errors_deg(fit.estimate.pose, truth)) < 0.05
+
+
+def test_a_clean_night_keeps_every_flash_and_a_hopeless_one_keeps_its_best_fit() -> None:
+    rng = np.random.default_rng(8)
+    _, _, b1, b2 = scene(rng, [0, 1, 0], n=300)
+    det1, det2 = night_detections(jitter(rng, b1, 0.02), b2, np.full(len(b1), 9.0))
+    clean = calibrate_pose(det1, det2, 0, WIDTH)
+    assert clean.min_snr is None and clean.warnings == [] and len(clean.tried) == 1
+
+    blurred = night_detections(jitter(rng, b1, 0.4), b2, rng.uniform(8.0, 30.0, len(b1)))
+    poor = calibrate_pose(*blurred, 0, WIDTH)
+    assert any("fits its calibration pairs poorly" in w for w in poor.warnings)
+    assert len(poor.tried) == 4  # every floor tried, none fits well
+    residuals = [t["median_residual_px"] for t in poor.tried]
+    assert poor.tried[residuals.index(min(residuals))]["min_snr"] == poor.min_snr
+
+
+def horizon_scene(
+    rng: np.random.Generator, n: int, elevation_deg: float
+) -> tuple[Pose, np.ndarray, np.ndarray]:
+    """Points 2–15 m away within ``elevation_deg`` of the horizon, side-by-side cameras."""
+    pose = Pose(Rotation.from_rotvec(np.radians([0.5, -0.8, 4.0])).as_matrix(), [0, 1, 0])
+    azimuth = rng.uniform(0, 2 * np.pi, n)
+    elevation = np.radians(rng.uniform(-elevation_deg, elevation_deg, n))
+    direction = np.column_stack(
+        [
+            np.cos(elevation) * np.cos(azimuth),
+            np.cos(elevation) * np.sin(azimuth),
+            np.sin(elevation),
+        ]
+    )
+    in_camera2 = pose.world_to_camera2(rng.uniform(2.0, 15.0, (n, 1)) * direction, SEPARATION)
+    return pose, direction, in_camera2 / np.linalg.norm(in_camera2, axis=1, keepdims=True)
+
+
+def test_rotation_standard_error_predicts_the_error_and_flags_weak_geometry() -> None:
+    rng = np.random.default_rng(9)
+    errors, standard_errors = [], []
+    for _ in range(40):
+        truth, b1, b2 = horizon_scene(rng, 20, elevation_deg=2.0)
+        est = estimate_pose(CalibrationPairs(np.arange(20), jitter(rng, b1, 0.05), b2))
+        errors.append(errors_deg(est.pose, truth)[0])
+        standard_errors.append(est.stats["rotation_se_deg"])
+    # The rotation error's root mean square is about the predicted standard error (the
+    # worst axis' error bounds the total from above, the other two add to it).
+    ratio = np.sqrt(np.mean(np.square(errors))) / np.median(standard_errors)
+    assert 0.5 < ratio < 2.0
+    # Few pairs hugging the horizon leave the rotation loose; pairs all round do not.
+    _, b1, b2 = horizon_scene(rng, 15, elevation_deg=0.5)
+    loose = estimate_pose(CalibrationPairs(np.arange(15), jitter(rng, b1, 0.05), b2))
+    _, _, b1, b2 = scene(rng, [0, 1, 0], n=300)
+    firm = estimate_pose(CalibrationPairs(np.arange(300), jitter(rng, b1, 0.05), b2))
+    assert firm.stats["rotation_se_deg"] < 0.05 < 0.3 < loose.stats["rotation_se_deg"]
+    (warning,) = fit_warnings(loose, WIDTH, PoseParams())
+    assert "poorly determined" in warning
+    assert fit_warnings(firm, WIDTH, PoseParams()) == []
