@@ -279,10 +279,7 @@ def _fit(
 ) -> tuple[Pose, float]:
     """Local least-squares fit of the pose from ``start``; returns the pose and its cost."""
     pose_of = _local_parameters(start)
-
-    def residuals(p: FloatArray) -> FloatArray:
-        return normalised_gap(closest_approach(b1, b2, pose_of(p)))
-
+    residuals = _gaps_near(b1, b2, pose_of)
     result = least_squares(residuals, np.zeros(5), loss=loss, f_scale=scale, max_nfev=max_nfev)
     return pose_of(result.x), float(result.cost)
 
@@ -298,6 +295,17 @@ def _local_parameters(start: Pose) -> Callable[[FloatArray], Pose]:
         return Pose(Rotation.from_rotvec(p[:3]).as_matrix() @ r0, t0 + basis @ p[3:])
 
     return pose_of
+
+
+def _gaps_near(
+    b1: FloatArray, b2: FloatArray, pose_of: Callable[[FloatArray], Pose]
+) -> Callable[[FloatArray], FloatArray]:
+    """The pairs' depth-normalised gaps as a function of the local pose parameters."""
+
+    def gaps(p: FloatArray) -> FloatArray:
+        return normalised_gap(closest_approach(b1, b2, pose_of(p)))
+
+    return gaps
 
 
 def rotation_standard_error(bearing1: FloatArray, bearing2: FloatArray, pose: Pose) -> float:
@@ -324,11 +332,7 @@ def rotation_standard_error(bearing1: FloatArray, bearing2: FloatArray, pose: Po
     n = len(bearing1)
     if n <= 5:
         return float("inf")
-    pose_of = _local_parameters(pose)
-
-    def residuals(p: FloatArray) -> FloatArray:
-        return normalised_gap(closest_approach(bearing1, bearing2, pose_of(p)))
-
+    residuals = _gaps_near(bearing1, bearing2, _local_parameters(pose))
     steps = _JACOBIAN_STEP_RAD * np.eye(5)
     jacobian = np.column_stack(
         [(residuals(step) - residuals(-step)) / (2 * _JACOBIAN_STEP_RAD) for step in steps]
