@@ -21,6 +21,7 @@ from pipeline.cli import main
 from pipeline.detection_eval import score_run
 from pipeline.detections import Detections
 from pipeline.evaluate import detection_scores, evaluate_run
+from pipeline.geometry import rotation_angle
 from pipeline.params import PatternParams
 from pipeline.patterns import night_patterns
 from pipeline.results import FLASH_PATTERN_COLUMNS, read_flash_patterns, read_trajectories
@@ -138,6 +139,12 @@ def test_outputs_follow_the_contract(simulated, tmp_path) -> None:
         assert key in calibration
     rotation = np.array(calibration["rotation"])
     np.testing.assert_allclose(rotation @ rotation.T, np.eye(3), atol=1e-9)
+    # A clean night keeps its first fit; the rotation's standard error is small and the
+    # actual error within a few of it.
+    assert calibration["calibration_min_snr"] is None and len(calibration["pose_fits"]) == 1
+    standard_error = calibration["residuals"]["rotation_se_deg"]
+    error = np.degrees(rotation_angle(rotation, recording.truth.pose.rotation))
+    assert 0 < standard_error < 0.1 and error < 4 * standard_error, (error, standard_error)
     assert np.linalg.norm(calibration["translation"]) == pytest.approx(1.0)
     assert calibration["width"] == 2 * calibration["height"] == 640
     assert calibration["camera_height_m"] == 1.2
