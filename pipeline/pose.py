@@ -191,8 +191,10 @@ def estimate_pose(
     n = len(pairs)
     if n < params.min_pairs:
         raise PoseError(
-            f"only {n} calibration pairs (frames where each camera sees exactly one flash); "
-            f"at least {params.min_pairs} are needed to estimate the pose"
+            f"only {n} calibration pairs (frames where each camera sees exactly one confident "
+            f"flash); at least {params.min_pairs} are needed to estimate the pose. A longer "
+            "recording gives more; so does a lower acceptance.confident_snr, at some risk of "
+            "artifacts among them"
         )
     b1, b2 = pairs.bearing1, pairs.bearing2
     scale = np.radians(params.min_threshold_deg)
