@@ -105,7 +105,8 @@ class PoseEstimate:
         Inlier threshold used, in degrees.
     stats : dict
         ``median / mean / p90`` of the inliers' residuals, as ``*_deg`` (degrees) and
-        ``*_gap`` (separation units).
+        ``*_gap`` (separation units), and ``rotation_se_deg``
+        (`rotation_standard_error`).
     warnings : tuple of str
         Reasons to distrust the pose (few or a low fraction of inliers).
     """
