@@ -262,7 +262,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     from pipeline.training.splits import grouped_folds
 
     try:
-        classifier = FlashClassifier.load(args.model, args.card)
+        classifier = FlashClassifier.load(args.model, args.card, threads=None)
         parts = [load_patch_folder(d) for d in args.data]
         patches = PatchSet.concat([p.resized(classifier.input_size) for p in parts])
         models = [
@@ -336,7 +336,9 @@ def _classify(args: argparse.Namespace) -> int:
 
     try:
         batch_size = args.batch_size or DEFAULT_BATCH
-        classifier = FlashClassifier.load(args.model, args.card, batch_size=batch_size)
+        classifier = FlashClassifier.load(
+            args.model, args.card, batch_size=batch_size, threads=None
+        )
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1

@@ -51,6 +51,7 @@ class TileNoise:
         self._sum = np.zeros(grid, np.int64)
         self._n = 0
         self._next = 0
+        self._map: NDArray[np.float32] | None = None
 
     @property
     def frames(self) -> int:
@@ -71,6 +72,7 @@ class TileNoise:
         self._sum += quantised
         self._ring[self._next] = quantised
         self._next = (self._next + 1) % len(self._ring)
+        self._map = None
 
     def sigma(self) -> NDArray[np.float32]:
         """Current ``σ`` per tile in grey levels (zeros before the first frame)."""
@@ -78,3 +80,18 @@ class TileNoise:
             return np.zeros(self._sum.shape, np.float32)
         mean_negative = self._sum / (self._n * _QUANTUM)
         return (mean_negative * _GAUSSIAN_SCALE).astype(np.float32)
+
+    def pixel_sigma(self, shape: tuple[int, int], floor: float) -> NDArray[np.float32]:
+        """``max(σ, floor)`` of each pixel's tile over an image of `shape` (rows, columns).
+
+        The map is rebuilt only after an `update` (every `SAMPLE_EVERY`-th frame): the
+        same array is returned until then, so derived maps can be cached on it. It must
+        not be modified.
+        """
+        if self._map is None or self._map.shape != shape:
+            tiles = np.maximum(self.sigma(), np.float32(floor))
+            height, width = shape
+            self._map = np.asarray(
+                cv2.resize(tiles, (width, height), interpolation=cv2.INTER_NEAREST)
+            )
+        return self._map

@@ -40,16 +40,19 @@ One full-resolution pass (the binning, at 4K); then, on the binned image, the
 foreground, the filter, the noise tile means (every other frame), the noise map, the
 threshold comparison and the EWMA update (OpenCV, vectorised). Everything after that
 (labelling as a sparse graph of the candidate pixels with `scipy.sparse.csgraph`, local
-maxima, sub-pixel peaks) touches the candidate pixels only: 0.76 × decode-only
-throughput at 3840 × 1920 without the classifier (`bench/bench_tracking.py`).
-Candidates are classified in batches of `CLASSIFY_BATCH` patches gathered across frames.
+maxima, sub-pixel peaks) touches the candidate pixels only. Candidates are classified
+in batches of `CLASSIFY_BATCH` patches gathered across frames. OpenCV runs on one
+thread here: the decoder's frame threads keep the cores busy. At 3840 × 1920 with 44
+candidates per frame: 0.77 × decode-only throughput without the classifier, 0.64 × with
+it (`bench/bench_tracking.py`).
 """
 
 from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -189,14 +192,15 @@ def track_with_stats(
     scorer = _PatchScorer(classifier)
     rows = _RowCollector()
     counter = _ProgressCounter(progress)
-    for frame in iter_frames(info, first, stop):
-        blobs = detector.process(frame)
-        if blobs is None:
-            continue
-        rows.add(frame.index, blobs)
-        scorer.add(frame, blobs)
-        counter.step()
-    counter.finish()
+    with _opencv_threads(1):
+        for frame in iter_frames(info, first, stop):
+            blobs = detector.process(frame)
+            if blobs is None:
+                continue
+            rows.add(frame.index, blobs)
+            scorer.add(frame, blobs)
+            counter.step()
+        counter.finish()
     detections = rows.result()
     if classifier is not None:
         detections = detections.with_probability(scorer.result())
@@ -210,6 +214,22 @@ def track_with_stats(
             stats.flooded_frames,
         )
     return TrackingResult(detections, stats)
+
+
+@contextmanager
+def _opencv_threads(n: int) -> Iterator[None]:
+    """OpenCV's thread count set to `n` for the block, then restored.
+
+    The decoder's frame threads already keep every core busy while a frame is
+    analysed; OpenCV's own pool then only spins: a second thread nearly doubles the CPU
+    time of the matched filter for no gain in wall time (measured on 2 cores).
+    """
+    previous = cv2.getNumThreads()
+    cv2.setNumThreads(n)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(previous)
 
 
 # -- per-frame detection --------------------------------------------------------------
@@ -230,6 +250,7 @@ class _FrameDetector:
         grid = tile_grid(self._binned, params.noise_tile_px)
         self._lanes = Lanes(self._binned, grid, info.fps, params, start)
         self._mask = np.empty(self._binned, np.bool_)
+        self._level: tuple[NDArray[np.float32], NDArray[np.float32]] | None = None
         self._dropped_by_area = 0
         self._dropped_over_cap = 0
         self._flooded = 0
@@ -246,8 +267,7 @@ class _FrameDetector:
                 if frame.index % SAMPLE_EVERY == 0 or lane.noise.frames == 0:
                     lane.noise.update(filtered)
                 if tracks and frame.index >= self._start:
-                    tiles = np.maximum(lane.noise.sigma(), np.float32(self._params.min_noise))
-                    sigma = self._upsample(tiles)
+                    sigma = lane.noise.pixel_sigma(self._binned, self._params.min_noise)
                     blobs = self._detect(filtered, sigma, image, lane.background.level())
             lane.background.update(small)
         if blobs is None and frame.index >= self._start:
@@ -286,10 +306,6 @@ class _FrameDetector:
         values = luma[rows, cols] - background[rows // self._bin, cols // self._bin]
         return measure(full_idx, full_labels, values, luma, blob_snr[keep], x, y)
 
-    def _upsample(self, tiles: NDArray[np.float32]) -> NDArray[np.float32]:
-        height, width = self._binned
-        return np.asarray(cv2.resize(tiles, (width, height), interpolation=cv2.INTER_NEAREST))
-
     def _extent_pixels(
         self,
         filtered: NDArray[np.float32],
@@ -303,13 +319,19 @@ class _FrameDetector:
         is applied to the few pixels above the tile level rather than to the frame.
         """
         extent = np.float32(self._params.extent_threshold)
-        np.greater(filtered, sigma * extent, out=self._mask)
+        np.greater(filtered, self._extent_level(sigma), out=self._mask)
         idx = np.flatnonzero(self._mask)  # fast on bool, slow on a uint8 mask
         floor = background.ravel()[idx] * self._params.relative_noise + self._params.min_noise
         noise = np.maximum(sigma.ravel()[idx].astype(np.float64), floor)
         snr = filtered.ravel()[idx] / noise
         above = snr > extent
         return idx[above], snr[above]
+
+    def _extent_level(self, sigma: NDArray[np.float32]) -> NDArray[np.float32]:
+        """``extent_threshold · σ``, recomputed only when the noise map is rebuilt."""
+        if self._level is None or self._level[0] is not sigma:
+            self._level = (sigma, sigma * np.float32(self._params.extent_threshold))
+        return self._level[1]
 
     def _limit_pixels(
         self, idx: NDArray[np.intp], snr: NDArray[np.float64]

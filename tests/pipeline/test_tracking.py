@@ -7,6 +7,7 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from numpy.typing import NDArray
@@ -345,6 +346,16 @@ def test_progress_reports_every_frame_of_the_range_once(flickering: VideoInfo) -
     track(flickering, 25, 95, FAST, progress=calls.append)
     assert sum(calls) == 70
     assert len(calls) == math.ceil(70 / PROGRESS_EVERY)
+
+
+def test_opencv_runs_on_one_thread_while_tracking_and_is_restored(
+    flickering: VideoInfo,
+) -> None:
+    seen: list[int] = []
+    cv2.setNumThreads(2)
+    track(flickering, 25, 35, FAST, progress=lambda _: seen.append(cv2.getNumThreads()))
+    assert seen and set(seen) == {1}
+    assert cv2.getNumThreads() == 2
 
 
 def test_flooded_frame_is_capped_and_counted(tmp_path: Path) -> None:
