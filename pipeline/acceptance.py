@@ -7,6 +7,9 @@ Step 1, per camera (`assess`), from the candidate alone:
 * **light curve** — its spot stays lit for longer than a flash (`steady_frames`): a
   flash rises and falls within ~2–15 frames at 60 fps, a lamp or a glint held by the
   wind does not;
+* **recurrence** — its spot was as bright for a good share of the seconds before
+  (`pipeline.recurrence`, measured while tracking): foliage swinging the sky or a
+  glint in and out of a pixel, where a firefly only passes;
 * **classifier** — the patch classifier's probability is below ``doubt_probability``;
 * otherwise the candidate is **confident** when the classifier accepts it (probability
   at or above its threshold) *and* it stands ``confident_snr`` σ above the noise, and
@@ -54,6 +57,7 @@ class Verdict(IntEnum):
     FLICKER = 2
     STEADY = 3
     CLASSIFIER = 4
+    RECURRENT = 5
 
 
 @dataclass(frozen=True)
@@ -200,6 +204,8 @@ def assess(
     verdict = np.where(flicker_mask, Verdict.FLICKER, verdict)
     # A spot lit without a break also flickers by the duty measure; say the specific why.
     verdict = np.where(lit > params.max_flash_s * fps, Verdict.STEADY, verdict)
+    recurrent = candidates.recurrence >= params.max_recurrence  # False for NaN
+    verdict = np.where(recurrent & (verdict <= Verdict.DOUBTFUL), Verdict.RECURRENT, verdict)
     return Evidence(verdict.astype(np.int8), lit)
 
 

@@ -9,6 +9,8 @@ can plan a job without loading OpenCV or SciPy.
 
 from __future__ import annotations
 
+import math
+
 from pipeline.params import TrackingParams
 
 
@@ -18,12 +20,16 @@ def frames_read(start: int, stop: int, fps: float, params: TrackingParams) -> tu
     ``first`` is where the background model's warm-up begins: the start of the EWMA
     block's warm-up, or ``2L + 2`` frames before ``start`` for the box mean (``L`` for
     the mean, ``L`` more for the noise window measured against it, sampled every other
-    frame).
+    frame); and at least ``recurrence_window_s`` before ``start``, the past each
+    candidate's spot is looked up in (`pipeline.recurrence`).
     """
+    history = math.ceil(params.recurrence_window_s * fps)  # `pipeline.recurrence`
     if params.background == "box":
-        return max(0, start - 2 * box_length(fps, params) - 2), stop
-    block, warmup = block_grid(fps, params)
-    return max(0, (start // block) * block - warmup), stop
+        first = start - max(2 * box_length(fps, params) + 2, history)
+    else:
+        block, warmup = block_grid(fps, params)
+        first = min((start // block) * block - warmup, start - history)
+    return max(0, first), stop
 
 
 def chunk_ranges(

@@ -40,6 +40,9 @@ class Detections:
     snr : float32
         Largest matched-filter response of the blob in units of the noise σ
         (`pipeline.tracking`); NaN for detections made elsewhere.
+    recurrence : float32
+        Share of the frames 0.5–3 s before in which the spot was as bright
+        (`pipeline.recurrence`); NaN where not measured.
     """
 
     frame: np.ndarray
@@ -51,6 +54,7 @@ class Detections:
     peak_y: np.ndarray
     flash_probability: np.ndarray
     snr: np.ndarray
+    recurrence: np.ndarray
 
     _DTYPES: ClassVar[dict[str, type]] = {
         "frame": np.int64,
@@ -62,6 +66,7 @@ class Detections:
         "peak_y": np.int32,
         "flash_probability": np.float32,
         "snr": np.float32,
+        "recurrence": np.float32,
     }
 
     def __post_init__(self) -> None:
@@ -90,11 +95,12 @@ class Detections:
         peak_y: ArrayLike | None = None,
         flash_probability: ArrayLike | None = None,
         snr: ArrayLike | None = None,
+        recurrence: ArrayLike | None = None,
     ) -> Self:
         """Build a table from the required columns; optional ones get neutral defaults.
 
         Missing ``peak_x``/``peak_y`` default to the rounded centroid, ``area`` to 1,
-        ``peak``, ``flash_probability`` and ``snr`` to NaN.
+        ``peak``, ``flash_probability``, ``snr`` and ``recurrence`` to NaN.
         """
         x = np.asarray(x, dtype=np.float64)
         y = np.asarray(y, dtype=np.float64)
@@ -111,6 +117,7 @@ class Detections:
                 np.full(n, np.nan) if flash_probability is None else np.asarray(flash_probability)
             ),
             snr=np.full(n, np.nan) if snr is None else np.asarray(snr),
+            recurrence=np.full(n, np.nan) if recurrence is None else np.asarray(recurrence),
         )
 
     @classmethod
@@ -160,8 +167,8 @@ class Detections:
     def from_npz(cls, path: str | Path) -> Self:
         with np.load(path) as data:
             columns = {f.name: data[f.name] for f in fields(cls) if f.name in data}
-        if "snr" not in columns:  # written before the SNR column existed
-            columns["snr"] = np.full(len(columns["frame"]), np.nan)
+        for late in ("snr", "recurrence"):  # files written before these columns existed
+            columns.setdefault(late, np.full(len(columns["frame"]), np.nan))
         return cls(**columns)
 
     def to_csv(self, path: str | Path) -> None:

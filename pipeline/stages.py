@@ -362,6 +362,7 @@ def accept(ctx: StageContext) -> StageResult:
             "rejected_flicker": verdicts["flicker"],
             "rejected_light_curve": verdicts["steady"],
             "rejected_classifier": verdicts["classifier"],
+            "rejected_recurrent": verdicts["recurrent"],
             "rejected_unconfirmed": verdicts["doubtful"] - int(confirmed.sum()),
         }
     return StageResult(metrics=metrics)

@@ -20,7 +20,10 @@ For every frame ``k`` of a camera, with luminance ``Y_k`` (0–255):
    ``[0, W)``), and at full resolution its area, its peak foreground, its SNR (largest
    filtered response in ``σ``) and its brightest luminance pixel (``peak_x``,
    ``peak_y``: where its classifier patch is centred);
-6. optionally, the flash probability of an RGB patch around that brightest pixel.
+6. the share of the frames 0.5–3 s before in which the neighbourhood of ``(x, y)`` was
+   as bright as now (`pipeline.recurrence`): swaying foliage lights the same pixels
+   again and again, a firefly passes;
+7. optionally, the flash probability of an RGB patch around that brightest pixel.
 
 Exact chunking
 --------------
@@ -76,6 +79,7 @@ from pipeline.matched_filter import bin_image, binning, matched_filter
 from pipeline.noise import SAMPLE_EVERY, tile_grid
 from pipeline.params import TrackingParams
 from pipeline.patches import extract_patches
+from pipeline.recurrence import BrightHistory
 from pipeline.video import Frame, VideoInfo, iter_frames
 
 logger = logging.getLogger(__name__)
@@ -197,7 +201,7 @@ def track_with_stats(
             blobs = detector.process(frame)
             if blobs is None:
                 continue
-            rows.add(frame.index, blobs)
+            rows.add(frame.index, blobs, detector.recurrence(frame.index, blobs))
             scorer.add(frame, blobs)
             counter.step()
         counter.finish()
@@ -249,6 +253,14 @@ class _FrameDetector:
         self._binned = (info.height // self._bin, info.width // self._bin)
         grid = tile_grid(self._binned, params.noise_tile_px)
         self._lanes = Lanes(self._binned, grid, info.fps, params, start)
+        self._history = BrightHistory(
+            self._binned,
+            info.fps,
+            params.recurrence_after_s,
+            params.recurrence_window_s,
+            params.recurrence_margin,
+        )
+        self._small = np.zeros(self._binned, np.uint8)
         self._mask = np.empty(self._binned, np.bool_)
         self._level: tuple[NDArray[np.float32], NDArray[np.float32]] | None = None
         self._dropped_by_area = 0
@@ -270,9 +282,18 @@ class _FrameDetector:
                     sigma = lane.noise.pixel_sigma(self._binned, self._params.min_noise)
                     blobs = self._detect(filtered, sigma, image, lane.background.level())
             lane.background.update(small)
+        self._history.add(frame.index, small)
+        self._small = small
         if blobs is None and frame.index >= self._start:
             blobs = Blobs.empty()  # nothing seen yet: the frame is its own background
         return blobs
+
+    def recurrence(self, k: int, blobs: Blobs) -> NDArray[np.float32]:
+        """`BrightHistory.recurrence` of the blobs of frame `k`, the last one processed."""
+        # The binned pixel holding each blob's (full-resolution, sub-pixel) position.
+        rows = np.minimum((blobs.y + 0.5) // self._bin, self._binned[0] - 1).astype(np.intp)
+        cols = ((blobs.x + 0.5) // self._bin).astype(np.intp) % self._binned[1]
+        return self._history.recurrence(k, self._small, rows, cols)
 
     def stats(self, frames: int, warmup_frames: int, candidates: int) -> TrackingStats:
         return TrackingStats(
@@ -398,7 +419,7 @@ class _RowCollector:
         self._parts: list[Detections] = []
         self._recent: list[Detections] = []
 
-    def add(self, frame_index: int, blobs: Blobs) -> None:
+    def add(self, frame_index: int, blobs: Blobs, recurrence: NDArray[np.float32]) -> None:
         if len(blobs) == 0:
             return
         self._recent.append(
@@ -411,6 +432,7 @@ class _RowCollector:
                 peak_x=blobs.peak_x,
                 peak_y=blobs.peak_y,
                 snr=blobs.snr,
+                recurrence=recurrence,
             )
         )
         if len(self._recent) >= self._COMPACT_EVERY:

@@ -57,6 +57,30 @@ def test_each_kind_of_evidence_gives_its_verdict() -> None:
     assert evidence.counts()["steady"] == 90 and evidence.lit_frames[20] == 90
 
 
+def test_a_spot_often_as_bright_before_is_rejected_unless_already_rejected() -> None:
+    rows = [
+        *_flash(0, 100, 50, 3, 0.95, 20.0),  # confident, but its spot recurs
+        *_flash(100, 200, 60, 3, 0.4, 20.0),  # doubtful, recurs
+        *_flash(200, 300, 70, 3, 0.01, 30.0),  # the classifier said no first
+        *_flash(300, 400, 80, 3, 0.95, 20.0),  # recurs a little: a flash
+        *_flash(400, 500, 90, 3, 0.95, 20.0),  # not measured (start of a video)
+    ]
+    frame, x, y, probability, snr = (np.array(c) for c in zip(*rows, strict=True))
+    recurrence = np.repeat([0.6, 0.3, 0.9, 0.1, np.nan], 3)
+    candidates = Detections.from_columns(
+        frame, x, y, flash_probability=probability, snr=snr, recurrence=recurrence
+    )
+    params = AcceptanceParams(max_recurrence=0.25)
+    verdict = assess(candidates, WIDTH, FPS, THRESHOLD, params, FlickerParams()).verdict
+    expected = [Verdict.RECURRENT] * 6 + [Verdict.CLASSIFIER] * 3 + [Verdict.CONFIDENT] * 6
+    assert verdict.tolist() == expected
+    off = AcceptanceParams(max_recurrence=1.01)
+    assert (
+        Verdict.RECURRENT
+        not in assess(candidates, WIDTH, FPS, THRESHOLD, off, FlickerParams()).verdict
+    )
+
+
 def test_without_a_classifier_snr_decides_and_disabled_accepts_all() -> None:
     candidates = _candidates([(0, 10.0, 10.0, np.nan, 12.0), (5, 90.0, 10.0, np.nan, 4.5)])
     evidence = assess(candidates, WIDTH, FPS, None, AcceptanceParams(), FlickerParams())

@@ -41,6 +41,7 @@ const FIELDS = [
   ["acceptance.cam{c}.rejected_classifier", "Rejected by the classifier, camera {c}"],
   ["acceptance.cam{c}.rejected_flicker", "Rejected: flickering spot, camera {c}"],
   ["acceptance.cam{c}.rejected_light_curve", "Rejected: lit too long for a flash, camera {c}"],
+  ["acceptance.cam{c}.rejected_recurrent", "Rejected: spot as bright again and again (swaying foliage), camera {c}"],
   ["acceptance.cam{c}.accepted", "Flashes accepted, camera {c}"],
   ["acceptance.cam{c}.candidates", "Candidates weighed, camera {c}"],
   ["counts.calibration_pairs", "Calibration pairs (one flash per camera)"],
