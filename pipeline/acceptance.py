@@ -12,8 +12,9 @@ Step 1, per camera (`assess`), from the candidate alone:
   glint in and out of a pixel, where a firefly only passes;
 * **classifier** — the patch classifier's probability is below ``doubt_probability``;
 * otherwise the candidate is **confident** when the classifier accepts it (probability
-  at or above its threshold) *and* it stands ``confident_snr`` σ above the noise, and
-  **doubtful** if not. The delay and the pose are estimated from confident flashes only.
+  at or above its threshold) *and* it stands ``confident_snr`` σ above the noise
+  (``single_frame_snr`` if its spot is lit in that frame only), and **doubtful** if
+  not. The delay and the pose are estimated from confident flashes only.
 
 Step 2, across the cameras (`confirm`), once the delay and the pose are known: a
 doubtful candidate is a flash when it matches a candidate of the other camera within
@@ -191,7 +192,9 @@ def assess(
         return Evidence(np.zeros(n, np.int8), np.ones(n, np.int64))
     lit = steady_frames(candidates.frame, candidates.x, candidates.y, width, params.radius_deg)
     probability = candidates.flash_probability
-    snr_ok = ~(candidates.snr < params.confident_snr)  # NaN: no SNR to doubt
+    # NaN: no SNR to doubt. A faint spot lit in one frame only is as likely grain.
+    needed = np.where(lit == 1, params.single_frame_snr, params.confident_snr)
+    snr_ok = ~(candidates.snr < needed)
     if threshold is None:
         unlikely = np.zeros(n, bool)
         likely = np.ones(n, bool)

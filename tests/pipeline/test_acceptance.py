@@ -57,6 +57,18 @@ def test_each_kind_of_evidence_gives_its_verdict() -> None:
     assert evidence.counts()["steady"] == 90 and evidence.lit_frames[20] == 90
 
 
+def test_a_faint_spot_lit_in_one_frame_only_is_doubtful() -> None:
+    rows = [
+        *_flash(0, 100, 50, 1, 0.95, 10.0),  # one frame at 10 σ: grain as likely as a flash
+        *_flash(100, 200, 60, 1, 0.95, 15.0),  # one frame, bright enough
+        *_flash(200, 300, 70, 3, 0.95, 10.0),  # three frames at 10 σ
+    ]
+    params = AcceptanceParams(confident_snr=8.0, single_frame_snr=12.0)
+    verdict = assess(_candidates(rows), WIDTH, FPS, THRESHOLD, params, FlickerParams()).verdict
+    expected = [Verdict.DOUBTFUL, Verdict.CONFIDENT] + [Verdict.CONFIDENT] * 3
+    assert verdict.tolist() == expected
+
+
 def test_a_spot_often_as_bright_before_is_rejected_unless_already_rejected() -> None:
     rows = [
         *_flash(0, 100, 50, 3, 0.95, 20.0),  # confident, but its spot recurs
