@@ -46,8 +46,8 @@ threshold comparison and the EWMA update (OpenCV, vectorised). Everything after 
 maxima, sub-pixel peaks) touches the candidate pixels only. Candidates are classified
 in batches of `CLASSIFY_BATCH` patches gathered across frames. OpenCV runs on one
 thread here: the decoder's frame threads keep the cores busy. At 3840 × 1920 with 44
-candidates per frame: 0.77 × decode-only throughput without the classifier, 0.64 × with
-it (`bench/bench_tracking.py`).
+candidates per frame: 0.77 × decode-only throughput without the classifier, 0.61 × with
+it and the recurrence history (`bench/bench_tracking.py`).
 """
 
 from __future__ import annotations
