@@ -201,7 +201,7 @@ def track_with_stats(
             blobs = detector.process(frame)
             if blobs is None:
                 continue
-            rows.add(frame.index, blobs, detector.recurrence(frame.index, blobs))
+            rows.add(frame.index, blobs, detector.recurrence(blobs))
             scorer.add(frame, blobs)
             counter.step()
         counter.finish()
@@ -260,7 +260,7 @@ class _FrameDetector:
             params.recurrence_window_s,
             params.recurrence_margin,
         )
-        self._small = np.zeros(self._binned, np.uint8)
+        self._last = (-1, np.zeros(self._binned, np.uint8))  # index and binned luminance
         self._mask = np.empty(self._binned, np.bool_)
         self._level: tuple[NDArray[np.float32], NDArray[np.float32]] | None = None
         self._dropped_by_area = 0
@@ -283,17 +283,18 @@ class _FrameDetector:
                     blobs = self._detect(filtered, sigma, image, lane.background.level())
             lane.background.update(small)
         self._history.add(frame.index, small)
-        self._small = small
+        self._last = (frame.index, small)
         if blobs is None and frame.index >= self._start:
             blobs = Blobs.empty()  # nothing seen yet: the frame is its own background
         return blobs
 
-    def recurrence(self, k: int, blobs: Blobs) -> NDArray[np.float32]:
-        """`BrightHistory.recurrence` of the blobs of frame `k`, the last one processed."""
+    def recurrence(self, blobs: Blobs) -> NDArray[np.float32]:
+        """`BrightHistory.recurrence` of the blobs of the last frame processed."""
+        k, small = self._last
         # The binned pixel holding each blob's (full-resolution, sub-pixel) position.
         rows = np.minimum((blobs.y + 0.5) // self._bin, self._binned[0] - 1).astype(np.intp)
         cols = ((blobs.x + 0.5) // self._bin).astype(np.intp) % self._binned[1]
-        return self._history.recurrence(k, self._small, rows, cols)
+        return self._history.recurrence(k, small, rows, cols)
 
     def stats(self, frames: int, warmup_frames: int, candidates: int) -> TrackingStats:
         return TrackingStats(
