@@ -44,6 +44,7 @@ from pipeline.detections import Detections
 from pipeline.flicker import flickering, spot_tree
 from pipeline.geometry import Pose
 from pipeline.params import AcceptanceParams, FlickerParams, LinkingParams, TriangulationParams
+from pipeline.refine import refine_positions
 from pipeline.trajectories import link
 from pipeline.triangulate import triangulate
 
@@ -112,18 +113,17 @@ class Evidence:
         return cls(verdict=verdict, lit_frames=np.ones(len(detections), np.int64))
 
 
-def steady_frames(
+def spot_chains(
     frame: NDArray[np.integer],
     x: NDArray[np.floating],
     y: NDArray[np.floating],
     width: int,
     radius_deg: float,
-) -> NDArray[np.int64]:
-    """How many frames each candidate's spot stays lit without a break.
+) -> NDArray[np.intp]:
+    """Light-curve chains: the candidates of one lit spot in consecutive frames.
 
     Candidates in the same or consecutive frames within `radius_deg` of each other
-    (Chebyshev, in pixels of that angle, wrapping at the 360° seam) are chained; each
-    candidate gets the frame span of its chain.
+    (Chebyshev, in pixels of that angle, wrapping at the 360° seam) are chained.
 
     Parameters
     ----------
@@ -138,17 +138,36 @@ def steady_frames(
 
     Returns
     -------
-    ndarray of int64, shape (N,)
-        Frames from the first to the last of the candidate's chain, inclusive.
+    ndarray of intp, shape (N,)
+        Chain label of each candidate, ``0 .. n_chains − 1``.
     """
     n = len(frame)
     if n == 0:
-        return np.zeros(0, np.int64)
+        return np.zeros(0, np.intp)
     # Consecutive frames are 1 apart in time, frames further apart are not neighbours.
     tree = spot_tree(np.asarray(frame, dtype=np.float64), x, y, width, radius_deg)
     pairs = tree.query_pairs(r=1.0, p=np.inf, output_type="ndarray")
     graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    _, chain = connected_components(graph, directed=False)
+    return connected_components(graph, directed=False)[1].astype(np.intp)
+
+
+def steady_frames(frame: NDArray[np.integer], chain: NDArray[np.integer]) -> NDArray[np.int64]:
+    """How many frames each candidate's spot stays lit without a break.
+
+    Parameters
+    ----------
+    frame : ndarray of int, shape (N,)
+        0-based frame of each candidate.
+    chain : ndarray of int, shape (N,)
+        Its light-curve chain (`spot_chains`).
+
+    Returns
+    -------
+    ndarray of int64, shape (N,)
+        Frames from the first to the last of the candidate's chain, inclusive.
+    """
+    if len(frame) == 0:
+        return np.zeros(0, np.int64)
     first = np.full(chain.max() + 1, np.iinfo(np.int64).max)
     last = np.full(chain.max() + 1, np.iinfo(np.int64).min)
     np.minimum.at(first, chain, frame)
@@ -190,7 +209,8 @@ def assess(
     n = len(candidates)
     if not params.enabled:
         return Evidence(np.zeros(n, np.int8), np.ones(n, np.int64))
-    lit = steady_frames(candidates.frame, candidates.x, candidates.y, width, params.radius_deg)
+    chain = spot_chains(candidates.frame, candidates.x, candidates.y, width, params.radius_deg)
+    lit = steady_frames(candidates.frame, chain)
     probability = candidates.flash_probability
     # NaN: no SNR to doubt. A faint spot lit in one frame only is as likely grain.
     needed = np.where(lit == 1, params.single_frame_snr, params.confident_snr)
@@ -210,6 +230,24 @@ def assess(
     recurrent = candidates.recurrence >= params.max_recurrence  # False for NaN
     verdict = np.where(recurrent & (verdict <= Verdict.DOUBTFUL), Verdict.RECURRENT, verdict)
     return Evidence(verdict.astype(np.int8), lit)
+
+
+def refined(candidates: Detections, width: int, fps: float, params: AcceptanceParams) -> Detections:
+    """Candidates with positions refined along their light curves (`pipeline.refine`).
+
+    Each fit spans ``params.position_window_s`` on either side and weighs every frame
+    by its SNR² (the position error of a spot falls as 1 / SNR); rows without an SNR
+    weigh as 1 σ.
+    """
+    half_window = round(params.position_window_s * fps)
+    if half_window < 1 or len(candidates) == 0:
+        return candidates
+    chain = spot_chains(candidates.frame, candidates.x, candidates.y, width, params.radius_deg)
+    snr = np.nan_to_num(np.maximum(candidates.snr.astype(np.float64), 1.0), nan=1.0)
+    x, y = refine_positions(
+        candidates.frame, candidates.x, candidates.y, snr**2, chain, width, half_window
+    )
+    return candidates.with_positions(x, y)
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,9 @@ class Detections:
     frame : int64
         Global 0-based frame index.
     x, y : float64
-        Intensity-weighted centroid of the blob's foreground, in pixels (``x = u``).
+        Position of the spot in pixels (``x = u``): the sub-pixel peak of the matched
+        filter's response (`pipeline.blobs.subpixel_peak`), refined along the light
+        curve once the candidates are merged (`pipeline.refine`).
     area : int32
         Number of pixels in the connected component.
     peak : float32
@@ -145,9 +147,14 @@ class Detections:
         return self.select(np.lexsort((self.x, self.y, self.frame)))
 
     def with_probability(self, flash_probability: ArrayLike) -> Self:
-        cols = {f.name: getattr(self, f.name) for f in fields(self)}
-        cols["flash_probability"] = np.asarray(flash_probability)
-        return type(self)(**cols)
+        return self._replaced(flash_probability=np.asarray(flash_probability))
+
+    def with_positions(self, x: ArrayLike, y: ArrayLike) -> Self:
+        """The same rows at other positions (`pipeline.refine`)."""
+        return self._replaced(x=np.asarray(x), y=np.asarray(y))
+
+    def _replaced(self, **columns: NDArray) -> Self:
+        return type(self)(**(self.columns() | columns))
 
     def counts_per_frame(self, n_frames: int) -> NDArray[np.int64]:
         """Number of detections in each frame ``0 .. n_frames-1``: the series N(k)."""

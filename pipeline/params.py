@@ -495,6 +495,16 @@ class AcceptanceParams(BaseModel):
         description="Radius (degrees) within which candidates of consecutive frames belong "
         "to the same lit spot (the light curve).",
     )
+    position_window_s: float = Field(
+        0.07,
+        ge=0,
+        le=1,
+        description="Each candidate's position is refined by a straight-line fit, weighted "
+        "by SNR², through the positions of its light curve within this many seconds on "
+        "either side (pipeline.refine): grain and compression are new in every frame, a "
+        "firefly's drift is smooth. 0: positions as measured. Simulated hard nights "
+        "(tuning, 640 px): median position error 0.19 → 0.15 px, 3D points true 0.92 → 0.95.",
+    )
     stereo: bool = Field(True, description="Confirm doubtful candidates with the other camera.")
     min_streak: int = Field(
         3,

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.acceptance import Evidence, assess, confirm
+from pipeline.acceptance import Evidence, assess, confirm, refined
 from pipeline.artifacts import (
     CALIBRATION_JSON,
     CALIBRATION_PAIRS_NPZ,
@@ -175,7 +175,8 @@ def _tracking_totals(chunk_metrics: Iterable[Mapping[str, Any]]) -> dict[str, An
 def merge(ctx: StageContext) -> StageResult:
     """Concatenate a camera's chunks and weigh each candidate's own evidence.
 
-    Writes every candidate (``candidates_cam<c>.npz``) and its step-1 evidence
+    Writes every candidate (``candidates_cam<c>.npz``, positions refined along the light
+    curve: `pipeline.acceptance.refined`) and its step-1 evidence
     (``evidence_cam<c>.npz``: flicker, light curve, classifier, SNR;
     `pipeline.acceptance.assess`).
     """
@@ -186,7 +187,10 @@ def merge(ctx: StageContext) -> StageResult:
         raise FileNotFoundError(f"camera {camera}: tracking chunks missing: {', '.join(missing)}")
     # Canonical row order (frame, row, column): results then do not depend on how a
     # tracker (ours, or another behind `reconstruct`) happened to list its blobs.
-    candidates = Detections.concat(Detections.from_npz(p) for p in chunks).sorted()
+    measured = Detections.concat(Detections.from_npz(p) for p in chunks).sorted()
+    candidates = refined(measured, ctx.probe.width, ctx.probe.fps, ctx.params.acceptance)
+    n_refined = int(np.count_nonzero((candidates.x != measured.x) | (candidates.y != measured.y)))
+    candidates = candidates.sorted()
     threshold = accept_threshold(ctx.params.classifier)
     evidence = assess(
         candidates,
@@ -205,6 +209,7 @@ def merge(ctx: StageContext) -> StageResult:
         "camera": camera,
         "n_chunks": len(chunks),
         "n_candidates": len(candidates),
+        "n_refined_positions": n_refined,
         "verdicts": evidence.counts(),
         "threshold": threshold,
         "tracking": tracking,

@@ -20,7 +20,13 @@ from pipeline import artifacts
 from pipeline.cli import main
 from pipeline.detection_eval import score_run
 from pipeline.detections import Detections
-from pipeline.evaluate import detection_scores, evaluate_run
+from pipeline.evaluate import (
+    DETECTION_TOLERANCE_PX,
+    camera_points,
+    detection_scores,
+    evaluate_run,
+    nearest_same_frame,
+)
 from pipeline.geometry import rotation_angle
 from pipeline.params import PatternParams
 from pipeline.patterns import night_patterns
@@ -104,6 +110,28 @@ def test_faint_flashes_of_a_hard_night_are_found(simulated, tmp_path) -> None:
         assert accepted["precision"] >= 0.95, accepted
     summary = json.loads((tmp_path / artifacts.SUMMARY_JSON).read_text())
     assert summary["acceptance"]["cam1"]["accepted_stereo"] > 0  # faint ones confirmed
+    # Positions refined along the light curve are closer to the truth than measured.
+    measured = Detections.concat(
+        Detections.from_npz(p) for p in sorted((tmp_path / "work/tracking/cam1").glob("*.npz"))
+    )
+    refined = Detections.from_npz(tmp_path / artifacts.candidates_name(1))
+    errors = [position_errors(found, recording.truth, camera=1) for found in (measured, refined)]
+    assert len(errors[0]) == len(errors[1]) > 300
+    assert np.median(errors[1]) < 0.9 * np.median(errors[0]), [np.median(e) for e in errors]
+
+
+def position_errors(found: Detections, truth: GroundTruth, camera: int) -> np.ndarray:
+    """Distance (px) from each visible true flash-frame to the nearest detection of its
+    frame, for those found (`pipeline.evaluate.match_detections`)."""
+    frame, u, v, visible = truth.flashes.in_camera(camera)
+    rows = np.flatnonzero(visible)
+    gap, _ = nearest_same_frame(
+        camera_points(found.x, found.y, truth.width),
+        found.frame,
+        camera_points(u[rows], v[rows], truth.width),
+        frame[rows],
+    )
+    return gap[gap <= DETECTION_TOLERANCE_PX]
 
 
 def test_outputs_follow_the_contract(simulated, tmp_path) -> None:

@@ -5,10 +5,19 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from pipeline.acceptance import Evidence, Verdict, assess, confirm, steady_frames
+from pipeline.acceptance import (
+    Evidence,
+    Verdict,
+    assess,
+    confirm,
+    refined,
+    spot_chains,
+    steady_frames,
+)
 from pipeline.detections import Detections
 from pipeline.geometry import Pose, bearing_to_pixel
 from pipeline.params import AcceptanceParams, FlickerParams, LinkingParams, TriangulationParams
+from pipeline.refine import refine_positions
 
 WIDTH, FPS, SEPARATION = 640, 60.0, 1.5
 POSE = Pose(np.eye(3), [1.0, 0.0, 0.0])
@@ -28,8 +37,30 @@ def test_a_lit_spot_is_measured_frame_span_of_its_chain() -> None:
     frame = np.array([10, 11, 12, 13, 40, 41, 100, 101, 102])
     x = np.array([100.0, 100.4, 100.8, 101.2, 639.5, 0.3, 300.0, 310.0, 320.0])
     y = np.array([50.0, 50.0, 50.2, 50.1, 80.0, 80.0, 60.0, 60.0, 60.0])
-    lit = steady_frames(frame, x, y, WIDTH, radius_deg=1.0)  # 1° = 1.8 px here
+    chain = spot_chains(frame, x, y, WIDTH, radius_deg=1.0)  # 1° = 1.8 px here
+    lit = steady_frames(frame, chain)
     assert lit.tolist() == [4, 4, 4, 4, 2, 2, 1, 1, 1]  # across the seam; jumps break it
+    assert len(set(chain[:4])) == 1 and chain[4] == chain[5] and len(set(chain)) == 5
+
+
+def test_positions_are_refined_along_the_light_curve_only_when_asked() -> None:
+    rng = np.random.default_rng(8)
+    frame = np.r_[np.arange(8), 30]
+    x = np.r_[200.0 + 0.3 * np.arange(8), 400.0] + rng.normal(0, 0.3, 9)
+    y = np.r_[100.0 - 0.1 * np.arange(8), 50.0] + rng.normal(0, 0.3, 9)
+    snr = np.r_[np.linspace(5, 20, 8), 9.0]
+    candidates = Detections.from_columns(frame, x, y, snr=snr)
+    params = AcceptanceParams()  # 0.07 s: ±4 frames at 60 fps
+    out = refined(candidates, WIDTH, FPS, params)
+    chain = spot_chains(frame, x, y, WIDTH, params.radius_deg)
+    weight = candidates.snr.astype(np.float64) ** 2
+    want_x, want_y = refine_positions(frame, x, y, weight, chain, WIDTH, 4)
+    np.testing.assert_array_equal(out.x, want_x)
+    np.testing.assert_array_equal(out.y, want_y)
+    assert not np.allclose(out.x[:8], x[:8]) and out.x[8] == x[8]
+    assert np.array_equal(out.frame, frame) and np.array_equal(out.snr, candidates.snr)
+    off = refined(candidates, WIDTH, FPS, params.model_copy(update={"position_window_s": 0.0}))
+    assert np.array_equal(off.x, x) and np.array_equal(off.y, y)
 
 
 def test_each_kind_of_evidence_gives_its_verdict() -> None:
