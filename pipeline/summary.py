@@ -47,6 +47,7 @@ def summarise(records: Mapping[Unit, StageResult], params: ProcessParams) -> dic
     counts: dict[str, Any] = {}
     for camera in CAMERAS:
         counts[f"candidates_cam{camera}"] = value(f"merge_cam{camera}", "n_candidates")
+        counts[f"refined_cam{camera}"] = value(f"merge_cam{camera}", "n_refined_positions")
         counts[f"flashes_cam{camera}"] = (value("accept", f"cam{camera}") or {}).get("accepted")
     counts.update(
         calibration_pairs=value("pose", "n_calibration_pairs"),

@@ -68,7 +68,7 @@ def check_flash_timing(out: Path, truth: GroundTruth, frames: int = 1) -> None:
 
 #: With artifacts, at 640 px, the detector of issue 7 finds the faint and distant flashes
 #: the earlier fixed threshold missed, and some of them triangulate outside 2 % (or 5 %)
-#: of their range: measured 0.82–0.88 within 2 % and 0.95–0.99 of points true on these
+#: of their range: measured 0.82–0.89 within 2 % and 0.96–0.99 of points true on these
 #: recordings (README, "Accuracy"); the contract's 0.90 / 0.98 hold on the clean night.
 ARTIFACT_LEVELS = {"recall_within_2pct": 0.80, "precision": 0.94}
 

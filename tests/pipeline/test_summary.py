@@ -22,7 +22,9 @@ def test_summary_gathers_counts_calibration_tracking_warnings_and_timings() -> N
             },
             ["low confidence"],
         ),
-        Unit("merge", 1): StageResult({"n_candidates": 80, "tracking": tracking, "seconds": 0.2}),
+        Unit("merge", 1): StageResult(
+            {"n_candidates": 80, "n_refined_positions": 61, "tracking": tracking, "seconds": 0.2}
+        ),
         Unit("accept"): StageResult(
             {"cam1": {"accepted": 52, "accepted_stereo": 4}, "cam2": {"accepted": 47}}
         ),
@@ -40,8 +42,10 @@ def test_summary_gathers_counts_calibration_tracking_warnings_and_timings() -> N
     summary = summarise(records, ProcessParams())
     assert summary["counts"] == {
         "candidates_cam1": 80,
+        "refined_cam1": 61,
         "flashes_cam1": 52,
         "candidates_cam2": None,
+        "refined_cam2": None,
         "flashes_cam2": 47,
         "calibration_pairs": 30,
         "calibration_inliers": 28,

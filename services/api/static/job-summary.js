@@ -35,6 +35,7 @@ const FIELDS = [
   ["patterns.ifi_s.n", "Inter-flash intervals"],
   ["counts.flashes_cam{c}", "Flashes accepted, camera {c}"],
   ["counts.candidates_cam{c}", "Candidates tracked, camera {c}"],
+  ["counts.refined_cam{c}", "Candidate positions refined along their light curve, camera {c}"],
   ["acceptance.cam{c}.accepted_confident", "Accepted: classifier and SNR agree, camera {c}"],
   ["acceptance.cam{c}.accepted_stereo", "Accepted: doubtful, confirmed by the other camera, camera {c}"],
   ["acceptance.cam{c}.rejected_unconfirmed", "Rejected: doubtful, not confirmed in stereo, camera {c}"],
