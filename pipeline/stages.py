@@ -229,7 +229,9 @@ def import_detections(
     """Write detections made elsewhere as a run's candidates and evidence (`reconstruct`).
 
     They are taken as flashes, except rows whose SNR is below `confident_snr`
-    (`pipeline.acceptance.Evidence.imported`), which need stereo confirmation.
+    (`pipeline.acceptance.Evidence.imported`), which need stereo confirmation. Their
+    positions are kept as given: our own flashes were refined along the light curve
+    before they were written, and refining twice would smooth them twice.
     """
     for camera, found in detections.items():
         ordered = found.sorted()
