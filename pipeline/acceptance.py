@@ -1,5 +1,9 @@
 """Which flash candidates are flashes: every kind of evidence, weighed in two steps.
 
+Before step 1, `refined` moves each candidate to a straight-line fit through its light
+curve's positions (`pipeline.refine`): the delay, the pose and the triangulation all
+start from those positions.
+
 Step 1, per camera (`assess`), from the candidate alone:
 
 * **flicker** — its spot lights up in too many frames of a window (`pipeline.flicker`):

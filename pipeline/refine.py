@@ -50,8 +50,9 @@ def refine_positions(
     -------
     x, y : ndarray of float64, shape (N,)
         The fit's position at the candidate's frame where at least 3 frames of its chain
-        lie within the window; the measured one elsewhere, and in chains holding two
-        candidates in one frame (two spots the chain could not tell apart).
+        lie within the window (``y`` kept within the frame's rows, ``0 .. width / 2 − 1``);
+        the measured one elsewhere, and in chains holding two candidates in one frame
+        (two spots the chain could not tell apart).
     """
     x0 = np.array(x, dtype=np.float64)
     y0 = np.array(y, dtype=np.float64)
@@ -83,7 +84,8 @@ def refine_positions(
     safe = np.where(fit, det, 1.0)
     refined_x = np.where(fit, np.mod(xs + (s2 * sx - s1 * stx) / safe, width), xs)
     refined_x[refined_x >= width] -= width  # mod can round a tiny negative up to width
-    refined_y = np.where(fit, ys + (s2 * sy - s1 * sty) / safe, ys)
+    # A fit extrapolated to a chain's end near a pole stays inside the frame (H = W / 2).
+    refined_y = np.where(fit, np.clip(ys + (s2 * sy - s1 * sty) / safe, 0, width / 2 - 1), ys)
     out_x, out_y = np.empty(n), np.empty(n)
     out_x[order], out_y[order] = refined_x, refined_y
     return out_x, out_y

@@ -54,6 +54,15 @@ def test_the_fit_wraps_at_the_seam() -> None:
     assert np.all(np.abs(gap) < 0.2) and np.all((fx >= 0) & (fx < WIDTH))
 
 
+def test_a_fit_near_the_zenith_stays_in_the_frame() -> None:
+    frame = np.arange(4)
+    y = np.array([0.05, 0.6, 1.8, 3.0])  # leaving the top row; the first fit lands at -0.06
+    _, fy = _refine(frame, np.full(4, 50.0), y)
+    assert fy[0] == 0.0 and np.all(np.diff(fy) > 0)
+    _, fy = _refine(frame, np.full(4, 50.0), WIDTH / 2 - 1 - y)  # the nadir, mirrored
+    assert fy[0] == WIDTH / 2 - 1
+
+
 def test_weights_pull_a_faint_frame_onto_its_bright_neighbours() -> None:
     frame = np.arange(5)
     x = np.array([100.0, 101.0, 103.0, 103.0, 104.0])  # frame 2 is 1 px off the line
