@@ -188,12 +188,16 @@ class DetectionMatch:
     distance : ndarray
         Per detection, the distance (equatorial pixels) to the nearest visible true
         flash of its frame (inf where there is none).
+    error : ndarray
+        Per truth row, the distance (equatorial pixels) to the nearest detection of its
+        frame (inf where there is none): the position error where ``found``.
     """
 
     truth_rows: np.ndarray
     found: np.ndarray
     true_detection: np.ndarray
     distance: np.ndarray
+    error: np.ndarray
 
     @property
     def recall(self) -> float:
@@ -229,6 +233,7 @@ def match_detections(detections: Detections, truth: GroundTruth, camera: int) ->
         found=gap_truth <= DETECTION_TOLERANCE_PX,
         true_detection=gap_det <= DETECTION_TOLERANCE_PX,
         distance=gap_det,
+        error=gap_truth,
     )
 
 

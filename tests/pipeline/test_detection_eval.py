@@ -118,6 +118,11 @@ def test_detection_figures_on_hand_made_truth() -> None:
     assert snr["10-20"]["found_rate"] is None
     rng = by_label(figures["by_range_m"])
     assert [(rng[k]["n"], rng[k]["found"]) for k in rng] == [(1, 1), (1, 0), (1, 1), (1, 1)]
+    # Position errors of the three found: 0 px, 1 px across the seam, 1.5 px.
+    assert figures["median_error_px"] == pytest.approx(1.0, abs=1e-4)  # chord, not arc
+    errors = by_label(figures["by_error_px"])
+    assert sum(b["n"] for b in errors.values()) == 3 and errors["0-0.1"]["n"] == 1
+    assert errors["1-2"]["n"] >= 1 and errors["0.1-0.2"]["n"] == 0
 
 
 def test_stereo_figures_count_flashes_detected_by_both_cameras() -> None:
