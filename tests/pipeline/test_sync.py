@@ -3,7 +3,7 @@ import pytest
 from pydantic import ValidationError
 
 from pipeline.params import SyncParams
-from pipeline.sync import SyncError, clean_counts, estimate_delay
+from pipeline.sync import SyncError, clean_counts, estimate_delay, window_votes
 
 FPS = 30.0
 MAX_LAG = round(SyncParams().max_delay_s * FPS)
@@ -159,3 +159,22 @@ def test_bad_input_raises_clear_errors() -> None:
         estimate_delay(-counts1, counts2, FPS)
     with pytest.raises(ValidationError):
         SyncParams(n_windows=10)
+
+
+def test_a_stretch_mostly_past_camera_2s_end_cannot_win() -> None:
+    # Camera 1's window [0, 20) holds one flash, at frame 2. Camera 2 saw it at lag 10,
+    # with a false neighbour; its lone flash at frame 73 is frame 2 at lag 71, where only
+    # 7 of the window's 20 frames were recorded. A lone flash correlates perfectly with
+    # any window, and lag 71 used to win.
+    counts1, counts2 = np.zeros(80), np.zeros(80)
+    counts1[[2, 30, 31, 50]] = 1
+    counts2[[12, 13, 73]] = 1
+    x1, x2 = counts1 - counts1.mean(), counts2 - counts2.mean()
+    assert window_votes(x1, x2, np.array([0]), window=20, max_lag=75).tolist() == [10]
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_short_recordings_with_long_windows(seed: int) -> None:
+    # 15 s at 60 fps: each 10 s window spans two thirds of the recording.
+    counts1, counts2 = flash_counts(np.random.default_rng(seed), -40, 900, 900, n_trains=12)
+    assert estimate_delay(counts1, counts2, 60.0).delay_frames == -40
