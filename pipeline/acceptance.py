@@ -24,7 +24,10 @@ Step 2, across the cameras (`confirm`), once the delay and the pose are known: a
 doubtful candidate is a flash when it matches a candidate of the other camera within
 the triangulation gates and either the 3D point links into a streak of at least
 ``min_streak`` frames that somewhere stands ``streak_peak_snr`` σ above the noise in
-both cameras, or both candidates stand ``stereo_snr`` σ above the noise.
+both cameras, or its light curve is matched with the same light curve of the other
+camera in as many frames, one of them as bright (a far flash, whose depth noise
+breaks the 3D links: at 15 m and 640 px a tenth of a pixel is 0.2 m of depth), or
+both candidates stand ``stereo_snr`` σ above the noise.
 Noise, glints and faint artifacts almost never agree between two cameras in 3D over
 several consecutive frames, nor does noise reach 6 σ in both at a consistent bearing;
 a faint distant firefly does (simulated hard night, 640 px: 468 true and 9 false
@@ -76,10 +79,13 @@ class Evidence:
         `Verdict` of step 1.
     lit_frames : ndarray of int64
         Frames its spot stays lit (the light curve's length around it).
+    chain : ndarray of intp
+        Its light curve (`spot_chains` label): which candidates are the same lit spot.
     """
 
     verdict: NDArray[np.int8]
     lit_frames: NDArray[np.int64]
+    chain: NDArray[np.intp]
 
     def __len__(self) -> int:
         return len(self.verdict)
@@ -99,12 +105,17 @@ class Evidence:
         return {v.name.lower(): int(found[v]) for v in Verdict}
 
     def save(self, path: str | Path) -> None:
-        np.savez_compressed(path, verdict=self.verdict, lit_frames=self.lit_frames)
+        np.savez_compressed(
+            path, verdict=self.verdict, lit_frames=self.lit_frames, chain=self.chain
+        )
 
     @classmethod
     def load(cls, path: str | Path) -> Evidence:
         with np.load(path) as data:
-            return cls(verdict=data["verdict"], lit_frames=data["lit_frames"])
+            verdict = data["verdict"]
+            # Evidence of earlier releases has no chains: each candidate its own.
+            chain = data["chain"] if "chain" in data else np.arange(len(verdict))
+            return cls(verdict=verdict, lit_frames=data["lit_frames"], chain=chain)
 
     @classmethod
     def imported(cls, detections: Detections, confident_snr: float) -> Evidence:
@@ -114,7 +125,8 @@ class Evidence:
         """
         faint = detections.snr < confident_snr  # False for NaN
         verdict = np.where(faint, Verdict.DOUBTFUL, Verdict.CONFIDENT).astype(np.int8)
-        return cls(verdict=verdict, lit_frames=np.ones(len(detections), np.int64))
+        n = len(detections)
+        return cls(verdict=verdict, lit_frames=np.ones(n, np.int64), chain=np.arange(n))
 
 
 def spot_chains(
@@ -212,7 +224,7 @@ def assess(
     """
     n = len(candidates)
     if not params.enabled:
-        return Evidence(np.zeros(n, np.int8), np.ones(n, np.int64))
+        return Evidence(np.zeros(n, np.int8), np.ones(n, np.int64), np.arange(n))
     chain = spot_chains(candidates.frame, candidates.x, candidates.y, width, params.radius_deg)
     lit = steady_frames(candidates.frame, chain)
     probability = candidates.flash_probability
@@ -233,7 +245,7 @@ def assess(
     verdict = np.where(lit > params.max_flash_s * fps, Verdict.STEADY, verdict)
     recurrent = candidates.recurrence >= params.max_recurrence  # False for NaN
     verdict = np.where(recurrent & (verdict <= Verdict.DOUBTFUL), Verdict.RECURRENT, verdict)
-    return Evidence(verdict.astype(np.int8), lit)
+    return Evidence(verdict.astype(np.int8), lit, chain)
 
 
 def refined(candidates: Detections, width: int, fps: float, params: AcceptanceParams) -> Detections:
@@ -314,17 +326,19 @@ def confirm(
             det1.select(rows1), det2.select(rows2), delay_frames, pose, width, separation_m, gates
         )
         streak = link(points, fps, linking).streak_id
-        length = np.bincount(streak) if len(streak) else np.zeros(0, np.int64)
         weaker = np.fmin(det1.snr[rows1[points.index1]], det2.snr[rows2[points.index2]])
-        # A flash's streak peaks; wind-shaken leaves agree in 3D frame after frame
-        # too, but stay faint.
-        peak = np.zeros(len(length))
-        np.fmax.at(peak, streak, np.nan_to_num(weaker, nan=np.inf))
-        streaky = (length[streak] >= params.min_streak) & (peak[streak] >= params.streak_peak_snr)
-        good = streaky | ~(weaker < params.stereo_snr)
+        # The same two light curves matched frame after frame are one flash seen by
+        # both cameras, even where depth noise breaks the 3D links of a far one.
+        curves = np.column_stack([ev1.chain[rows1[points.index1]], ev2.chain[rows2[points.index2]]])
+        curve_pair = np.unique(curves, axis=0, return_inverse=True)[1].reshape(-1)
+        good = (
+            _rises(streak, weaker, params)
+            | _rises(curve_pair, weaker, params)
+            | ~(weaker < params.stereo_snr)
+        )
         if params.anchored:
             sure = ev1.confident[rows1[points.index1]] | ev2.confident[rows2[points.index2]]
-            anchored = np.zeros(len(length), bool)
+            anchored = np.zeros(len(points), bool)
             anchored[streak[sure]] = True
             good &= anchored[streak]
         confirmed[0][rows1[points.index1[good]]] = True
@@ -338,3 +352,21 @@ def confirm(
         stereo1=stereo1,
         stereo2=stereo2,
     )
+
+
+def _rises(
+    group: NDArray[np.intp], weaker: NDArray[np.floating], params: AcceptanceParams
+) -> BoolArray:
+    """Per stereo match: its group (a 3D streak, or a pair of light curves) spans at
+    least ``min_streak`` matches, one of which stands ``streak_peak_snr`` σ in both
+    cameras (`weaker`: the fainter camera's SNR, NaN for none known).
+
+    A flash rises to a peak; wind-shaken leaves agree in 3D frame after frame too, but
+    stay faint.
+    """
+    if len(group) == 0:
+        return np.zeros(0, bool)
+    length = np.bincount(group)
+    peak = np.zeros(len(length))
+    np.fmax.at(peak, group, np.nan_to_num(weaker, nan=np.inf))
+    return (length[group] >= params.min_streak) & (peak[group] >= params.streak_peak_snr)

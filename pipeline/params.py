@@ -510,7 +510,9 @@ class AcceptanceParams(BaseModel):
         3,
         ge=1,
         description="A doubtful candidate is confirmed when its stereo match links into a 3D "
-        "streak of at least this many frames.",
+        "streak of at least this many frames, or when its light curve and the other "
+        "camera's are matched in as many frames (depth noise breaks the 3D links of far "
+        "flashes; tuning nights, 640 px: +1 % 2D recall, no false flash added).",
     )
     streak_peak_snr: float = Field(
         5.0,

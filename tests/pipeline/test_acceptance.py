@@ -18,6 +18,8 @@ from pipeline.detections import Detections
 from pipeline.geometry import Pose, bearing_to_pixel
 from pipeline.params import AcceptanceParams, FlickerParams, LinkingParams, TriangulationParams
 from pipeline.refine import refine_positions
+from pipeline.trajectories import link
+from pipeline.triangulate import triangulate
 
 WIDTH, FPS, SEPARATION = 640, 60.0, 1.5
 POSE = Pose(np.eye(3), [1.0, 0.0, 0.0])
@@ -139,11 +141,19 @@ def _seen(points: NDArray[np.float64], camera: int) -> tuple[NDArray, NDArray]:
 
 def _stereo_scene() -> tuple[tuple[Detections, Detections], tuple[Evidence, Evidence]]:
     """Camera 1 and 2 candidates: a faint firefly over 4 frames (doubtful in both), a
-    confident flash, a faint single-frame flash, and unmatched noise in camera 1."""
+    faint single-frame flash, a confident flash, a faint far firefly over 4 frames whose
+    depth noise breaks its 3D links, and unmatched noise in camera 1."""
     track = np.array([[4.0 + 0.02 * i, 3.0, 1.0] for i in range(4)])
     single = np.array([[-3.0, 5.0, 2.0]])
     bright = np.array([[2.0, -6.0, 1.5]])
-    frames = {"track": np.arange(10, 14), "single": np.array([30]), "bright": np.array([50])}
+    # Along one ray of camera 1, 1 m nearer and farther in turn (> linking's 0.3 m).
+    far = np.outer([17.5, 18.5, 17.6, 18.4], [0.6, 0.79, 0.1])
+    frames = {
+        "track": np.arange(10, 14),
+        "single": np.array([30]),
+        "bright": np.array([50]),
+        "far": np.arange(90, 94),
+    }
     dets, evs = [], []
     for camera in (1, 2):
         u, v, f, snr, verdict = [], [], [], [], []
@@ -151,6 +161,7 @@ def _stereo_scene() -> tuple[tuple[Detections, Detections], tuple[Evidence, Evid
             ("track", track, 5.0, Verdict.DOUBTFUL),
             ("single", single, 5.0, Verdict.DOUBTFUL),
             ("bright", bright, 30.0, Verdict.CONFIDENT),
+            ("far", far, 5.0, Verdict.DOUBTFUL),
         ):
             pu, pv = _seen(points, camera)
             u += pu.tolist()
@@ -163,7 +174,8 @@ def _stereo_scene() -> tuple[tuple[Detections, Detections], tuple[Evidence, Evid
             snr, verdict = [*snr, 4.5], [*verdict, Verdict.DOUBTFUL]
         det = Detections.from_columns(f, u, v, snr=snr)
         dets.append(det)
-        evs.append(Evidence(np.array(verdict, np.int8), np.ones(len(det), np.int64)))
+        chain = spot_chains(det.frame, det.x, det.y, WIDTH, 1.0)
+        evs.append(Evidence(np.array(verdict, np.int8), np.ones(len(det), np.int64), chain))
     return (dets[0], dets[1]), (evs[0], evs[1])
 
 
@@ -185,10 +197,26 @@ def _confirm(params: AcceptanceParams):
 
 def test_stereo_confirms_a_faint_streak_but_not_a_faint_single_frame_or_noise() -> None:
     outcome = _confirm(AcceptanceParams())
-    # Rows: 4 streak frames, 1 faint single frame, 1 confident flash (+ noise in cam 1).
-    assert outcome.accepted1.tolist() == [True] * 4 + [False, True, False]
-    assert outcome.stereo1.tolist() == [True] * 4 + [False, False, False]
-    assert outcome.accepted2.tolist() == [True] * 4 + [False, True]
+    # Rows: 4 streak frames, 1 faint single frame, 1 confident flash, 4 far frames
+    # (+ noise in cam 1).
+    assert outcome.accepted1.tolist() == [True] * 4 + [False, True] + [True] * 4 + [False]
+    assert outcome.stereo1.tolist() == [True] * 4 + [False, False] + [True] * 4 + [False]
+    assert outcome.accepted2.tolist() == [True] * 4 + [False, True] + [True] * 4
+
+
+def test_a_far_flash_is_confirmed_by_its_light_curves_where_its_3d_links_break() -> None:
+    (det1, det2), (ev1, ev2) = _stereo_scene()
+    far1, far2 = np.arange(6, 10), np.arange(6, 10)
+    points = triangulate(
+        det1.select(far1), det2.select(far2), 0, POSE, WIDTH, SEPARATION, TriangulationParams()
+    )
+    assert len(points) == 4
+    assert len(np.unique(link(points, FPS, LinkingParams()).streak_id)) == 4  # no 3D streak
+    assert len(np.unique(ev1.chain[far1])) == 1 and len(np.unique(ev2.chain[far2])) == 1
+    assert _confirm(AcceptanceParams()).stereo2[far2].all()
+    # ... but only where the light curves rise to a peak, and span min_streak matches.
+    assert not _confirm(AcceptanceParams(streak_peak_snr=5.5)).stereo2[far2].any()
+    assert not _confirm(AcceptanceParams(min_streak=5)).stereo2[far2].any()
 
 
 def test_bright_matches_are_confirmed_without_a_streak_and_stereo_can_be_off() -> None:
@@ -197,9 +225,18 @@ def test_bright_matches_are_confirmed_without_a_streak_and_stereo_can_be_off() -
     anchored = _confirm(AcceptanceParams(anchored=True))
     assert not anchored.stereo1.any()  # no confident flash in the faint streak
     off = _confirm(AcceptanceParams(stereo=False))
-    assert off.accepted1.tolist() == [False] * 5 + [True, False]
+    assert off.accepted1.tolist() == [False] * 5 + [True] + [False] * 5
 
 
 def test_imported_detections_are_confident_unless_faint() -> None:
     det = Detections.from_columns([0, 1, 2], [1.0, 2.0, 3.0], [1.0, 1.0, 1.0], snr=[np.nan, 20, 5])
     assert Evidence.imported(det, 8.0).verdict.tolist() == [0, 0, 1]
+
+
+def test_evidence_round_trips_and_reads_earlier_files_without_chains(tmp_path) -> None:
+    evidence = Evidence(np.array([0, 1, 4], np.int8), np.array([3, 3, 1]), np.array([0, 0, 1]))
+    evidence.save(tmp_path / "now.npz")
+    loaded = Evidence.load(tmp_path / "now.npz")
+    assert loaded.verdict.tolist() == [0, 1, 4] and loaded.chain.tolist() == [0, 0, 1]
+    np.savez_compressed(tmp_path / "earlier.npz", verdict=evidence.verdict, lit_frames=[3, 3, 1])
+    assert Evidence.load(tmp_path / "earlier.npz").chain.tolist() == [0, 1, 2]
