@@ -42,6 +42,7 @@ from pipeline.evaluate import (
     DETECTION_TOLERANCE_PX,
     IDENTITY_TOLERANCE,
     RANGE_TOLERANCE,
+    PointMatch,
     camera_points,
     match_detections,
     match_points,
@@ -60,6 +61,10 @@ RANGE_EDGES_M: tuple[float, ...] = (0.0, 5.0, 8.0, 20.0, math.inf)
 ERROR_EDGES_PX: tuple[float, ...] = (0.0, 0.1, 0.2, 0.3, 0.5, 1.0, DETECTION_TOLERANCE_PX)
 #: The headline 2D figure: recall of flash-frames at or above this peak SNR (target 0.95).
 HEADLINE_SNR = 5.0
+#: A point's range is covered when within this many of its standard deviations.
+COVERAGE_SDS = 2.0
+#: Points this sure of their range (``range_sd / range``) are counted apart.
+SURE_RELATIVE_SD = 0.02
 #: A false detection this close (equatorial pixels) to a true flash of its frame is
 #: a fragment of it (halo, streak split), not an independent false positive.
 NEAR_FLASH_PX = 5.0
@@ -244,9 +249,13 @@ def stereo_figures(
 # -- 3D -----------------------------------------------------------------------------------
 
 
-def point_figures(xyz: NDArray, frame: NDArray, truth: GroundTruth) -> dict[str, Any]:
+def point_figures(
+    xyz: NDArray, frame: NDArray, truth: GroundTruth, range_sd: NDArray | None = None
+) -> dict[str, Any]:
     """3D recall (within 5 % and 2 % of range), precision, and recall per range bin
-    (from camera 1) and per bin of the smaller of the two cameras' peak SNR."""
+    (from camera 1) and per bin of the smaller of the two cameras' peak SNR; with the
+    points' `range_sd` (metres), how well it describes their range errors
+    (`uncertainty_figures`)."""
     match = match_points(xyz, frame, truth)
     found = match.found(IDENTITY_TOLERANCE)
     found2 = match.found(RANGE_TOLERANCE)
@@ -265,6 +274,37 @@ def point_figures(xyz: NDArray, frame: NDArray, truth: GroundTruth) -> dict[str,
         "precision": ratio(match.point_is_true.sum(), len(frame)),
         "by_range_m": binned(match.true_range, flags, RANGE_EDGES_M),
         "by_snr": binned(snr, flags, SNR_EDGES),
+    } | uncertainty_figures(xyz, range_sd, match)
+
+
+def uncertainty_figures(
+    xyz: NDArray, range_sd: NDArray | None, match: PointMatch
+) -> dict[str, Any]:
+    """How well the points' range standard deviations describe their range errors.
+
+    * ``n_covered`` of the ``n_matched`` points (those with a true flash in their frame)
+      are within ``COVERAGE_SDS`` standard deviations of its range (``coverage``: 0.95
+      for a calibrated Gaussian error; mismatched flashes count as misses);
+    * ``n_sure`` points have ``range_sd / range ≤ SURE_RELATIVE_SD``, ``n_sure_true`` of
+      them are true (``precision_sure``): what a user keeping only those gets.
+
+    Empty without a finite `range_sd` for every point (results of earlier releases).
+    """
+    if range_sd is None or not np.isfinite(range_sd).all():
+        return {}
+    point_range = np.linalg.norm(xyz, axis=1)
+    matched = np.isfinite(match.point_range)
+    error = np.abs(point_range[matched] - match.point_range[matched])
+    n_covered = int(np.count_nonzero(error <= COVERAGE_SDS * range_sd[matched]))
+    sure = range_sd <= SURE_RELATIVE_SD * point_range
+    n_sure_true = int((sure & match.point_is_true).sum())
+    return {
+        "n_matched": int(matched.sum()),
+        "n_covered": n_covered,
+        "coverage": ratio(n_covered, int(matched.sum())),
+        "n_sure": int(sure.sum()),
+        "n_sure_true": n_sure_true,
+        "precision_sure": ratio(n_sure_true, int(sure.sum())),
     }
 
 
@@ -299,7 +339,8 @@ def score_run(results: Path, truth: GroundTruth) -> dict[str, Any]:
     if trajectories.is_file():
         table = read_trajectories(trajectories)
         xyz = np.column_stack([table["x"], table["y"], table["z"]])
-        points = point_figures(xyz, np.asarray(table["frame"]), truth)
+        sd = table.get("range_sd_m")
+        points = point_figures(xyz, np.asarray(table["frame"]), truth, sd)
     return {"cameras": cameras, "stereo": stereo, "points_3d": points}
 
 
@@ -311,6 +352,8 @@ _RATIOS = {
     "recall_within_2pct": ("n_found_within_2pct", "n_truth"),
     "precision": ("n_true", None),  # denominator: n_detections or n_points
     "per_frame": ("n_detections", "n_frames"),
+    "coverage": ("n_covered", "n_matched"),
+    "precision_sure": ("n_sure_true", "n_sure"),
 }
 
 
@@ -420,13 +463,15 @@ def format_table(rows: list[Row]) -> str:
     candidates' recall at SNR ≥ 5 (before acceptance), accepted precision, candidates
     per frame, the share of flash-frames seen by both cameras that both detected
     (``2cam``: 3D recall with a perfect calibration), 3D recall (5 % of range; 2 % in
-    brackets) and precision, 3D recall per range bin, and the run's delay error
+    brackets) and precision (of all points, and of those whose range is sure within
+    `SURE_RELATIVE_SD`, with the share of points they are), the coverage of the range
+    errors by twice the points' standard deviations, 3D recall per range bin, the run's delay error
     (frames) and rotation error (degrees), which explain a collapsed 3D recall.
     """
     header = (
         f"{'night':<20} {'recall c1/c2':>12} {'SNR>=5 c1/c2':>12} {'cand>=5 c1/c2':>13} "
         f"{'prec c1/c2':>10} {'cand/frame':>10} {'2cam':>4} {'3D rec':>6} {'(2%)':>6} "
-        f"{'3D prec':>7} "
+        f"{'3D prec':>7} {'sure: prec share':>16} {'cov':>4} "
         f"{'dk':>3} {'rot':>5}  3D recall by range 0-5/5-8/8-20/>=20 m"
     )
     lines = [header, "-" * len(header)]
@@ -446,11 +491,19 @@ def format_table(rows: list[Row]) -> str:
             f"{_f(stereo and stereo['recall']):>4} "
             f"{_f(points and points['recall']):>6} "
             f"({_f(points and points['recall_within_2pct'])}) "
-            f"{_f(points and points['precision']):>7} "
+            f"{_f(points and points['precision']):>7} {_sure(points):>16} "
+            f"{_f(points and points.get('coverage')):>4} "
             f"{'-' if delay is None else delay:>3} {_f(rotation, 1):>5}  "
             f"{_range_recall(points)}"
         )
     return "\n".join(lines)
+
+
+def _sure(points: dict[str, Any] | None) -> str:
+    """Precision of the points sure of their range, and their share of all points."""
+    if not points or points.get("n_sure") is None:
+        return "-"
+    return f"{_f(points['precision_sure'])} {_f(ratio(points['n_sure'], points['n_points']))}"
 
 
 def format_bins(name: str, entry: dict[str, Any]) -> str:

@@ -98,6 +98,12 @@ FIELDS: dict[str, dict[str, Field]] = {
         ),
         "gap_m": ("number", "m", "Ray gap of the triangulation (an error measure)"),
         "range_m": ("number", "m", "Distance from camera 1"),
+        "range_sd_m": (
+            "number",
+            "m",
+            "Standard deviation of range_m from the detections' position errors (first "
+            "order; the pose's error not included)",
+        ),
         "timestamp_utc": _TIME_UTC,
         "minutes_after_sunset": _AFTER_SUNSET,
     },

@@ -47,6 +47,7 @@ def write_plots(workdir: Path, patterns: PatternParams | None = None) -> list[st
             pairs["residuals"], pairs["inliers"], p
         ),
         "trajectories_3d.png": lambda p: plot_trajectories(trajectories, p),
+        "range_uncertainty.png": lambda p: plot_range_uncertainty(trajectories, p),
     }
     clock_path = workdir / artifacts.CLOCK_JSON
     plots.update(
@@ -164,6 +165,26 @@ def plot_trajectories(trajectories: dict[str, np.ndarray], path: Path) -> None:
     top.plot([0], [0], "k^")
     top.set(xlabel="x (m)", ylabel="y (m)", title="From above (camera 1 at ▲)")
     top.set_aspect("equal", adjustable="datalim")
+    _save(fig, path)
+
+
+def plot_range_uncertainty(trajectories: dict[str, np.ndarray], path: Path) -> None:
+    """Each point's range standard deviation, in percent of its range, against its range:
+    how far out the reconstruction is sure of depth (it grows about as the range)."""
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    distance = np.asarray(trajectories["range_m"], dtype=np.float64)
+    sd = np.asarray(trajectories.get("range_sd_m", np.full(len(distance), np.nan)))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        relative = 100.0 * sd / distance
+    known = np.isfinite(relative)
+    ax.scatter(distance[known], relative[known], s=2, alpha=0.5)
+    ax.axhline(2.0, color="k", linewidth=0.8, linestyle="--")
+    sure = np.count_nonzero(relative[known] <= 2.0)
+    ax.set(
+        xlabel="range from camera 1 (m)",
+        ylabel="range σ (% of range)",
+        title=f"Depth uncertainty: {sure} of {len(distance)} points within 2 %",
+    )
     _save(fig, path)
 
 

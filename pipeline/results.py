@@ -5,7 +5,7 @@
   ``width``, ``height``, ``n_calibration_pairs`` and residual statistics.
 * ``work/probe.json``: frame size, fps and each camera's length (and video probe).
 * ``trajectories.csv``: ``x,y,z,frame,time_s,streak_id,trajectory_id`` then extra
-  columns (``gap_m,range_m,timestamp_utc,minutes_after_sunset``; the last two empty
+  columns (``gap_m,range_m,range_sd_m,timestamp_utc,minutes_after_sunset``; the last two empty
   when the night's clock or location is unknown); one row per triangulated flash,
   metres in camera 1's frame, camera-1 frames.
 """
@@ -28,7 +28,13 @@ from pipeline.triangulate import Points3D
 
 #: Leading columns of ``trajectories.csv`` (CONTRACT), then the extra ones we add.
 TRAJECTORY_COLUMNS = ("x", "y", "z", "frame", "time_s", "streak_id", "trajectory_id")
-TRAJECTORY_EXTRA_COLUMNS = ("gap_m", "range_m", "timestamp_utc", "minutes_after_sunset")
+TRAJECTORY_EXTRA_COLUMNS = (
+    "gap_m",
+    "range_m",
+    "range_sd_m",
+    "timestamp_utc",
+    "minutes_after_sunset",
+)
 #: Columns of the results CSVs that hold text (ISO 8601 times), not numbers.
 TEXT_COLUMNS = ("timestamp_utc",)
 
@@ -86,6 +92,7 @@ def save_points(path: Path, points: Points3D) -> None:
         frame=points.frame,
         gap_m=points.gap_m,
         range_m=points.range_m,
+        range_sd_m=points.range_sd_m,
         index1=points.index1,
         index2=points.index2,
     )
@@ -98,6 +105,10 @@ def load_points(path: Path) -> Points3D:
             frame=data["frame"],
             gap_m=data["gap_m"],
             range_m=data["range_m"],
+            # Points of earlier releases carry no uncertainty.
+            range_sd_m=data["range_sd_m"]
+            if "range_sd_m" in data
+            else np.full(len(data["frame"]), np.nan),
             index1=data["index1"],
             index2=data["index2"],
         )
@@ -124,6 +135,7 @@ def write_trajectories(
             "trajectory_id": linking.trajectory_id,
             "gap_m": points.gap_m,
             "range_m": points.range_m,
+            "range_sd_m": points.range_sd_m,
             "timestamp_utc": clock.timestamps(points.frame, fps),
             "minutes_after_sunset": clock.minutes_after_sunset(points.frame, fps),
         },
@@ -135,6 +147,7 @@ def write_trajectories(
             "time_s": "%.4f",
             "gap_m": "%.4f",
             "range_m": "%.4f",
+            "range_sd_m": "%.4f",
         },
     )
 

@@ -187,6 +187,7 @@ def test_outputs_follow_the_contract(simulated, tmp_path) -> None:
         "flashes_per_minute.png",
         "height_profile.png",
         "interflash_intervals.png",
+        "range_uncertainty.png",
         "summary.json",
         "trajectories_3d.png",
     ]
@@ -296,7 +297,9 @@ def check_real_time_and_package(out: Path) -> None:
     """timestamp_utc from the video's creation time; the data package validates."""
     start = dt.datetime(2026, 6, 13, 1, 30, 5, tzinfo=dt.UTC)
     header = (out / "trajectories.csv").read_text().splitlines()[0]
-    assert header == f"{CONTRACT_HEADER},gap_m,range_m,timestamp_utc,minutes_after_sunset"
+    assert header == (
+        f"{CONTRACT_HEADER},gap_m,range_m,range_sd_m,timestamp_utc,minutes_after_sunset"
+    )
     table = read_trajectories(out / "trajectories.csv")
     expected = [start + dt.timedelta(seconds=t) for t in table["frame"] / 30.0]
     got = [dt.datetime.fromisoformat(stamp) for stamp in table["timestamp_utc"]]

@@ -164,6 +164,26 @@ def test_point_figures_on_hand_made_truth() -> None:
     assert rng["8-20"]["found"] == 0 and rng[">=20"]["found"] == 0
     snr = by_label(figures["by_snr"])  # min of both cameras' SNR: camera 1's here
     assert snr["0-3"]["n"] == 1 and snr[">=20"]["n"] == 1
+    assert "coverage" not in figures  # no standard deviations given
+    assert "coverage" not in point_figures(xyz, frame, truth, np.array([0.1, np.nan, 3.0]))
+
+
+def test_range_standard_deviations_are_scored_by_coverage_and_sure_precision() -> None:
+    truth = hand_truth()
+    xyz = np.array([[3.1, 0, 0], [0, 6.05, 0], [20.0, 0, 0]])  # 0.1, 0.05 and 5 m off
+    figures = point_figures(xyz, np.array([0, 0, 2]), truth, np.array([0.1, 0.01, 3.0]))
+    # Within 2 σ: 0.1 <= 0.2 and 5 <= 6, not 0.05 > 0.02.
+    assert figures["n_matched"] == 3 and figures["n_covered"] == 2
+    assert figures["coverage"] == pytest.approx(2 / 3)
+    # Sure within 2 % of range: only the second point (0.01 / 6.05), and it is true.
+    assert figures["n_sure"] == 1 and figures["n_sure_true"] == 1
+    assert figures["precision_sure"] == 1.0
+    wider = point_figures(xyz, np.array([0, 0, 2]), truth, np.array([0.1, 0.03, 3.0]))
+    assert wider["n_covered"] == 3 and wider["n_sure"] == 1
+    no_cameras = {cam: {"accepted": None, "candidates": None} for cam in ("cam1", "cam2")}
+    pooled = pool([{"cameras": no_cameras, "points_3d": f} for f in (figures, wider)])
+    assert pooled["points_3d"]["coverage"] == pytest.approx(5 / 6)
+    assert pooled["points_3d"]["precision_sure"] == 1.0
 
 
 def test_pool_adds_counts_and_recomputes_ratios() -> None:
@@ -237,6 +257,7 @@ def test_eval_detection_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture
     points = run["points_3d"]
     assert points["n_truth"] > 100 and points["n_points"] > 0
     assert 0.0 <= points["recall_within_2pct"] <= points["recall"] <= 1.0
+    assert 0.5 < points["coverage"] <= 1.0 and points["n_sure"] > 0
     stereo = run["stereo"]["accepted"]
     assert stereo["n_truth"] == points["n_truth"] and stereo["recall"] > 0.9
     assert points["recall"] <= stereo["recall"] + 0.02  # triangulation needs both cameras

@@ -146,7 +146,13 @@ def test_a_real_synchronous_swarm_is_found_synchronous(shared_dir: Path) -> None
     n = len(frame)
     index = np.arange(n)
     points = Points3D(
-        data[:, :3], frame, np.zeros(n), np.linalg.norm(data[:, :3], axis=1), index, index
+        data[:, :3],
+        frame,
+        np.zeros(n),
+        np.linalg.norm(data[:, :3], axis=1),
+        np.zeros(n),
+        index,
+        index,
     )
     linking = link(points, 60.0, LinkingParams())
     table = {

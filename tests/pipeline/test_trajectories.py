@@ -18,6 +18,7 @@ def points_of(xyz: ArrayLike, frame: ArrayLike) -> Points3D:
         frame=frame[order].astype(np.int64),
         gap_m=np.zeros(len(frame)),
         range_m=np.linalg.norm(xyz[order], axis=1),
+        range_sd_m=np.zeros(len(frame)),
         index1=order,  # the input row, to check labels against the truth
         index2=order,
     )

@@ -3,9 +3,16 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from pipeline.detections import Detections
-from pipeline.geometry import Pose, bearing_to_pixel
+from pipeline.geometry import Pose, bearing_to_pixel, closest_approach
 from pipeline.params import TriangulationParams, validate_separation
-from pipeline.triangulate import Points3D, candidate_pairs, parallax, triangulate
+from pipeline.triangulate import (
+    Points3D,
+    candidate_pairs,
+    localisation_rad,
+    parallax,
+    range_sd,
+    triangulate,
+)
 
 WIDTH = 640
 SEPARATION = 1.5
@@ -205,3 +212,52 @@ def test_assignment_with_several_flashes_respects_gate() -> None:
     np.testing.assert_array_equal(result.index1, [1])
     np.testing.assert_array_equal(result.index2, [0])
     np.testing.assert_allclose(result.xyz, [a], atol=1e-6)
+
+
+def _jittered(bearing: np.ndarray, sd: float, rng: np.random.Generator) -> np.ndarray:
+    """The bearing turned by an isotropic angular error of `sd` radians."""
+    moved = bearing + rng.normal(0.0, sd, bearing.shape)
+    moved -= np.sum(moved * bearing, axis=-1, keepdims=True) * bearing - bearing
+    return moved / np.linalg.norm(moved, axis=-1, keepdims=True)
+
+
+def test_range_sd_predicts_the_scatter_of_noisy_triangulations() -> None:
+    rng = np.random.default_rng(3)
+    points = random_points(rng, 6, near=3.0, far=18.0) / SEPARATION  # baseline units
+    b1 = points / np.linalg.norm(points, axis=1, keepdims=True)
+    in2 = POSE.world_to_camera2(points, 1.0)
+    b2 = in2 / np.linalg.norm(in2, axis=1, keepdims=True)
+    sd1, sd2 = np.full(6, 2e-3), np.full(6, 1e-3)
+    predicted = range_sd(b1, b2, POSE, sd1, sd2)
+    draws = np.stack(
+        [
+            np.linalg.norm(
+                closest_approach(_jittered(b1, 2e-3, rng), _jittered(b2, 1e-3, rng), POSE).midpoint,
+                axis=-1,
+            )
+            for _ in range(4000)
+        ]
+    )
+    np.testing.assert_allclose(draws.std(axis=0), predicted, rtol=0.08)
+
+
+def test_points_carry_a_range_sd_that_grows_with_range_and_falls_with_snr() -> None:
+    direction = np.array([1.0, -0.1, 0.3]) / np.linalg.norm([1.0, -0.1, 0.3])  # ⟂ baseline
+    points = np.outer([4.0, 8.0, 16.0, 16.0], direction)
+    frames = np.arange(4)
+    det1, det2 = detections_of(points, frames, 1), detections_of(points, frames, 2)
+    snr = np.array([9.0, 9.0, 9.0, 36.0])
+    det1 = Detections.from_columns(frames, det1.x, det1.y, snr=snr)
+    det2 = Detections.from_columns(frames, det2.x, det2.y, snr=snr)
+    sd = triangulate(det1, det2, 0, POSE, WIDTH, SEPARATION, EXACT).range_sd_m
+    assert sd[0] < sd[1] < sd[2]
+    np.testing.assert_allclose(sd[2] / sd[1], 4.0, rtol=0.1)  # far away: r² along a ray
+    np.testing.assert_allclose(sd[3] / sd[2], 0.5, rtol=1e-6)  # σ ∝ 1 / √SNR
+    assert 0.1 < sd[2] < 2.0  # metres at 16 m, 640 px, 1.5 m apart
+
+
+def test_localisation_follows_the_square_root_of_snr_and_tolerates_no_snr() -> None:
+    sd = localisation_rad(np.array([4.0, 16.0, np.nan]), 640, 0.5)
+    px = sd * 640 / (2 * np.pi)
+    np.testing.assert_allclose(px[:2], [0.25, 0.125])
+    assert np.isfinite(px[2])
