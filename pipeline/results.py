@@ -50,6 +50,8 @@ class Calibration:
     fps: float
     width: int
     height: int
+    #: Standard error of the rotation (degrees; 0 where unknown), from the pose fit.
+    rotation_se_deg: float = 0.0
 
 
 def write_calibration(path: Path, calibration: Calibration, extra: dict[str, Any]) -> None:
@@ -80,6 +82,7 @@ def read_calibration(path: Path) -> Calibration:
         fps=float(data["fps"]),
         width=int(data["width"]),
         height=int(data["height"]),
+        rotation_se_deg=float(data.get("residuals", {}).get("rotation_se_deg") or 0.0),
     )
 
 

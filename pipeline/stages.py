@@ -9,6 +9,7 @@ these call; nothing here knows whether it runs in the CLI or in a Celery worker.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Mapping
 from dataclasses import asdict
 from functools import lru_cache
@@ -388,6 +389,7 @@ def triangulate(ctx: StageContext) -> StageResult:
         calibration.width,
         ctx.separation_m,
         ctx.params.triangulation,
+        rotation_sd_rad=math.radians(calibration.rotation_se_deg),
     )
     save_points(ctx.path(POINTS_NPZ), points)
     metrics = {

@@ -76,6 +76,7 @@ def triangulate(
     width: int,
     separation_m: float,
     params: TriangulationParams = TriangulationParams(),  # noqa: B008 - frozen default
+    rotation_sd_rad: float = 0.0,
 ) -> Points3D:
     """Match flashes between the cameras frame by frame and triangulate them.
 
@@ -95,6 +96,9 @@ def triangulate(
         Matching gates, maximum range, minimum parallax and the detections'
         localisation error (``localisation_px``: ``σ = localisation_px / √SNR`` pixels;
         rows without an SNR count as `UNKNOWN_SNR`).
+    rotation_sd_rad : float
+        Standard error of the pose's rotation, radians: it turns camera 2's bearings, so
+        it adds in quadrature to their errors in ``range_sd_m``.
 
     Returns
     -------
@@ -142,7 +146,7 @@ def triangulate(
         pixel_to_bearing(det2.x[j2], det2.y[j2], width),
         pose,
         localisation_rad(det1.snr[j1], width, params.localisation_px),
-        localisation_rad(det2.snr[j2], width, params.localisation_px),
+        np.hypot(localisation_rad(det2.snr[j2], width, params.localisation_px), rotation_sd_rad),
     )
     return Points3D(
         xyz=rays.midpoint[chosen] * separation_m,

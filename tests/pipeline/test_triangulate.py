@@ -5,6 +5,7 @@ from scipy.spatial.transform import Rotation
 from pipeline.detections import Detections
 from pipeline.geometry import Pose, bearing_to_pixel, closest_approach
 from pipeline.params import TriangulationParams, validate_separation
+from pipeline.results import Calibration, read_calibration, write_calibration
 from pipeline.triangulate import (
     Points3D,
     candidate_pairs,
@@ -254,6 +255,16 @@ def test_points_carry_a_range_sd_that_grows_with_range_and_falls_with_snr() -> N
     np.testing.assert_allclose(sd[2] / sd[1], 4.0, rtol=0.1)  # far away: r² along a ray
     np.testing.assert_allclose(sd[3] / sd[2], 0.5, rtol=1e-6)  # σ ∝ 1 / √SNR
     assert 0.1 < sd[2] < 2.0  # metres at 16 m, 640 px, 1.5 m apart
+    posed = triangulate(det1, det2, 0, POSE, WIDTH, SEPARATION, EXACT, rotation_sd_rad=2e-3)
+    assert np.all(posed.range_sd_m > sd)  # the pose's own error adds to camera 2's
+
+
+def test_calibration_carries_the_rotation_standard_error(tmp_path) -> None:
+    calibration = Calibration(0, 1.0, POSE, SEPARATION, 30.0, WIDTH, WIDTH // 2)
+    write_calibration(tmp_path / "with.json", calibration, {"residuals": {"rotation_se_deg": 0.2}})
+    assert read_calibration(tmp_path / "with.json").rotation_se_deg == 0.2
+    write_calibration(tmp_path / "without.json", calibration, {})
+    assert read_calibration(tmp_path / "without.json").rotation_se_deg == 0.0
 
 
 def test_localisation_follows_the_square_root_of_snr_and_tolerates_no_snr() -> None:
