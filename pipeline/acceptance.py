@@ -22,16 +22,16 @@ Step 1, per camera (`assess`), from the candidate alone:
 
 Step 2, across the cameras (`confirm`), once the delay and the pose are known: a
 doubtful candidate is a flash when it matches a candidate of the other camera within
-the triangulation gates and either the 3D point links into a streak of at least
-``min_streak`` frames that somewhere stands ``streak_peak_snr`` σ above the noise in
-both cameras, or its light curve is matched with the same light curve of the other
-camera in as many frames, one of them as bright (a far flash, whose depth noise
-breaks the 3D links: at 15 m and 640 px a tenth of a pixel is 0.2 m of depth), or
-both candidates stand ``stereo_snr`` σ above the noise.
-Noise, glints and faint artifacts almost never agree between two cameras in 3D over
-several consecutive frames, nor does noise reach 6 σ in both at a consistent bearing;
-a faint distant firefly does (simulated hard night, 640 px: 468 true and 9 false
-points confirmed of 1,485 candidate matches).
+the triangulation gates and either its light curve is matched with the same light curve
+of the other camera in at least ``min_streak`` frames, one of which stands
+``streak_peak_snr`` σ above the noise in both cameras, or both candidates stand
+``stereo_snr`` σ above the noise. Noise, glints and faint artifacts almost never light
+the same two spots of the two cameras at a consistent bearing frame after frame, nor
+does noise reach 6 σ in both at once; a faint distant firefly does. A 3D streak alone
+is not evidence: candidates of different spots lighting up one after another can lie
+within a streak link of each other in 3D (wind-shaken foliage, more so at higher
+resolution), and a far flash's depth noise (at 15 m and 640 px a tenth of a pixel is
+0.2 m of depth) breaks the links of a true one.
 
 Verdicts are small integers (`Verdict`), stored per candidate row.
 """
@@ -50,9 +50,8 @@ from scipy.sparse.csgraph import connected_components
 from pipeline.detections import Detections
 from pipeline.flicker import flickering, spot_tree
 from pipeline.geometry import Pose
-from pipeline.params import AcceptanceParams, FlickerParams, LinkingParams, TriangulationParams
+from pipeline.params import AcceptanceParams, FlickerParams, TriangulationParams
 from pipeline.refine import refine_positions
-from pipeline.trajectories import link
 from pipeline.triangulate import triangulate
 
 BoolArray = NDArray[np.bool_]
@@ -283,10 +282,8 @@ def confirm(
     pose: Pose,
     width: int,
     separation_m: float,
-    fps: float,
     params: AcceptanceParams,
     triangulation: TriangulationParams,
-    linking: LinkingParams,
 ) -> Confirmation:
     """Step 2: accept the confident candidates and the doubtful ones stereo confirms.
 
@@ -302,12 +299,11 @@ def confirm(
         Frame width in pixels.
     separation_m : float
         Camera separation, metres.
-    fps : float
-        Frames per second.
     params : AcceptanceParams
-        ``min_streak``, ``stereo_snr``, ``stereo_max_gap_deg`` and ``anchored``.
-    triangulation, linking : TriangulationParams, LinkingParams
-        The gates of the matches and of the streaks.
+        ``min_streak``, ``streak_peak_snr``, ``stereo_snr``, ``stereo_max_gap_deg`` and
+        ``anchored``.
+    triangulation : TriangulationParams
+        The gates of the matches.
 
     Returns
     -------
@@ -325,22 +321,19 @@ def confirm(
         points = triangulate(
             det1.select(rows1), det2.select(rows2), delay_frames, pose, width, separation_m, gates
         )
-        streak = link(points, fps, linking).streak_id
         weaker = np.fmin(det1.snr[rows1[points.index1]], det2.snr[rows2[points.index2]])
         # The same two light curves matched frame after frame are one flash seen by
-        # both cameras, even where depth noise breaks the 3D links of a far one.
+        # both cameras. Points of other spots that only happen to lie close in 3D in
+        # consecutive frames are not (a 3D streak is no evidence of its own), and a far
+        # flash's depth noise breaks 3D links anyway.
         curves = np.column_stack([ev1.chain[rows1[points.index1]], ev2.chain[rows2[points.index2]]])
-        curve_pair = np.unique(curves, axis=0, return_inverse=True)[1].reshape(-1)
-        good = (
-            _rises(streak, weaker, params)
-            | _rises(curve_pair, weaker, params)
-            | ~(weaker < params.stereo_snr)
-        )
+        pair = np.unique(curves, axis=0, return_inverse=True)[1].reshape(-1)
+        good = _rises(pair, weaker, params) | ~(weaker < params.stereo_snr)
         if params.anchored:
             sure = ev1.confident[rows1[points.index1]] | ev2.confident[rows2[points.index2]]
             anchored = np.zeros(len(points), bool)
-            anchored[streak[sure]] = True
-            good &= anchored[streak]
+            anchored[pair[sure]] = True
+            good &= anchored[pair]
         confirmed[0][rows1[points.index1[good]]] = True
         confirmed[1][rows2[points.index2[good]]] = True
     # Only plausible rows were matched, so the confirmed non-confident ones are doubtful.

@@ -517,16 +517,15 @@ class AcceptanceParams(BaseModel):
     min_streak: int = Field(
         3,
         ge=1,
-        description="A doubtful candidate is confirmed when its stereo match links into a 3D "
-        "streak of at least this many frames, or when its light curve and the other "
-        "camera's are matched in as many frames (depth noise breaks the 3D links of far "
-        "flashes; tuning nights, 640 px: +1 % 2D recall, no false flash added).",
+        description="A doubtful candidate is confirmed when its light curve and the other "
+        "camera's are matched with each other in at least this many frames (stereo "
+        "matches between the same two lit spots).",
     )
     streak_peak_snr: float = Field(
         5.0,
         ge=0,
         description="…of which at least one frame stands this many σ above the noise in both "
-        "cameras (a flash rises to a peak; wind-shaken leaves agree in 3D frame after frame "
+        "cameras (a flash rises to a peak; wind-shaken leaves can agree frame after frame "
         "but stay faint).",
     )
     stereo_snr: float = Field(
@@ -543,7 +542,7 @@ class AcceptanceParams(BaseModel):
     )
     anchored: bool = Field(
         False,
-        description="Confirm only streaks that hold at least one confident flash.",
+        description="Confirm only light-curve pairs that hold at least one confident flash.",
     )
 
 

@@ -349,10 +349,8 @@ def accept(ctx: StageContext) -> StageResult:
         calibration.pose,
         calibration.width,
         ctx.separation_m,
-        ctx.probe.fps,
         ctx.params.acceptance,
         ctx.params.triangulation,
-        ctx.params.linking,
     )
     metrics: dict[str, Any] = {}
     accepted = (outcome.accepted1, outcome.accepted2)

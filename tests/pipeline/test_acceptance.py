@@ -142,17 +142,20 @@ def _seen(points: NDArray[np.float64], camera: int) -> tuple[NDArray, NDArray]:
 def _stereo_scene() -> tuple[tuple[Detections, Detections], tuple[Evidence, Evidence]]:
     """Camera 1 and 2 candidates: a faint firefly over 4 frames (doubtful in both), a
     faint single-frame flash, a confident flash, a faint far firefly over 4 frames whose
-    depth noise breaks its 3D links, and unmatched noise in camera 1."""
+    depth noise breaks its 3D links, faint spots that light up one after another 0.25 m
+    apart (a 3D streak of three different spots), and unmatched noise in camera 1."""
     track = np.array([[4.0 + 0.02 * i, 3.0, 1.0] for i in range(4)])
     single = np.array([[-3.0, 5.0, 2.0]])
     bright = np.array([[2.0, -6.0, 1.5]])
     # Along one ray of camera 1, 1 m nearer and farther in turn (> linking's 0.3 m).
     far = np.outer([17.5, 18.5, 17.6, 18.4], [0.6, 0.79, 0.1])
+    hop = np.array([[3.0, 0.25 * i, -1.0] for i in range(3)])  # 4.5° apart: three spots
     frames = {
         "track": np.arange(10, 14),
         "single": np.array([30]),
         "bright": np.array([50]),
         "far": np.arange(90, 94),
+        "hop": np.arange(110, 113),
     }
     dets, evs = [], []
     for camera in (1, 2):
@@ -162,6 +165,7 @@ def _stereo_scene() -> tuple[tuple[Detections, Detections], tuple[Evidence, Evid
             ("single", single, 5.0, Verdict.DOUBTFUL),
             ("bright", bright, 30.0, Verdict.CONFIDENT),
             ("far", far, 5.0, Verdict.DOUBTFUL),
+            ("hop", hop, 5.0, Verdict.DOUBTFUL),
         ):
             pu, pv = _seen(points, camera)
             u += pu.tolist()
@@ -188,20 +192,30 @@ def _confirm(params: AcceptanceParams):
         POSE,
         WIDTH,
         SEPARATION,
-        FPS,
         params,
         TriangulationParams(),
-        LinkingParams(),
     )
 
 
 def test_stereo_confirms_a_faint_streak_but_not_a_faint_single_frame_or_noise() -> None:
     outcome = _confirm(AcceptanceParams())
-    # Rows: 4 streak frames, 1 faint single frame, 1 confident flash, 4 far frames
-    # (+ noise in cam 1).
-    assert outcome.accepted1.tolist() == [True] * 4 + [False, True] + [True] * 4 + [False]
-    assert outcome.stereo1.tolist() == [True] * 4 + [False, False] + [True] * 4 + [False]
-    assert outcome.accepted2.tolist() == [True] * 4 + [False, True] + [True] * 4
+    # Rows: 4 streak frames, 1 faint single frame, 1 confident flash, 4 far frames,
+    # 3 hops (+ noise in cam 1).
+    expected = [True] * 4 + [False, True] + [True] * 4 + [False] * 3
+    assert outcome.accepted1.tolist() == [*expected, False]
+    assert outcome.stereo1.tolist() == [True] * 4 + [False, False] + [True] * 4 + [False] * 4
+    assert outcome.accepted2.tolist() == expected
+
+
+def test_a_3d_streak_of_different_spots_is_not_confirmed() -> None:
+    (det1, det2), (ev1, _) = _stereo_scene()
+    hop = np.arange(10, 13)
+    points = triangulate(
+        det1.select(hop), det2.select(hop), 0, POSE, WIDTH, SEPARATION, TriangulationParams()
+    )
+    assert len(np.unique(link(points, FPS, LinkingParams()).streak_id)) == 1  # one 3D streak
+    assert len(np.unique(ev1.chain[hop])) == 3  # ... of three different spots
+    assert not _confirm(AcceptanceParams()).stereo1[hop].any()
 
 
 def test_a_far_flash_is_confirmed_by_its_light_curves_where_its_3d_links_break() -> None:
@@ -225,7 +239,7 @@ def test_bright_matches_are_confirmed_without_a_streak_and_stereo_can_be_off() -
     anchored = _confirm(AcceptanceParams(anchored=True))
     assert not anchored.stereo1.any()  # no confident flash in the faint streak
     off = _confirm(AcceptanceParams(stereo=False))
-    assert off.accepted1.tolist() == [False] * 5 + [True] + [False] * 5
+    assert off.accepted1.tolist() == [False] * 5 + [True] + [False] * 8
 
 
 def test_imported_detections_are_confident_unless_faint() -> None:
