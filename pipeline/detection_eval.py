@@ -49,6 +49,7 @@ from pipeline.evaluate import (
 )
 from pipeline.results import read_trajectories
 from pipeline.simulate import GroundTruth
+from pipeline.triangulate import SURE_RELATIVE_SD
 
 #: Version of the JSON layout written by ``firefly3d eval-detection --json``.
 SCHEMA_VERSION = 1
@@ -63,8 +64,6 @@ ERROR_EDGES_PX: tuple[float, ...] = (0.0, 0.1, 0.2, 0.3, 0.5, 1.0, DETECTION_TOL
 HEADLINE_SNR = 5.0
 #: A point's range is covered when within this many of its standard deviations.
 COVERAGE_SDS = 2.0
-#: Points this sure of their range (``range_sd / range``) are counted apart.
-SURE_RELATIVE_SD = 0.02
 #: A false detection this close (equatorial pixels) to a true flash of its frame is
 #: a fragment of it (halo, streak split), not an independent false positive.
 NEAR_FLASH_PX = 5.0

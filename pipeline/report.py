@@ -27,6 +27,7 @@ from pipeline.params import PatternParams
 from pipeline.pattern_plots import pattern_plots
 from pipeline.probe import StereoProbe
 from pipeline.results import read_trajectories
+from pipeline.triangulate import SURE_RELATIVE_SD
 
 
 def write_plots(workdir: Path, patterns: PatternParams | None = None) -> list[str]:
@@ -177,13 +178,14 @@ def plot_range_uncertainty(trajectories: dict[str, np.ndarray], path: Path) -> N
     with np.errstate(divide="ignore", invalid="ignore"):
         relative = 100.0 * sd / distance
     known = np.isfinite(relative)
+    limit = 100.0 * SURE_RELATIVE_SD
     ax.scatter(distance[known], relative[known], s=2, alpha=0.5)
-    ax.axhline(2.0, color="k", linewidth=0.8, linestyle="--")
-    sure = np.count_nonzero(relative[known] <= 2.0)
+    ax.axhline(limit, color="k", linewidth=0.8, linestyle="--")
+    sure = np.count_nonzero(relative[known] <= limit)
     ax.set(
         xlabel="range from camera 1 (m)",
         ylabel="range σ (% of range)",
-        title=f"Depth uncertainty: {sure} of {len(distance)} points within 2 %",
+        title=f"Depth uncertainty: {sure} of {len(distance)} points within {limit:g} %",
     )
     _save(fig, path)
 

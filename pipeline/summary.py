@@ -53,6 +53,7 @@ def summarise(records: Mapping[Unit, StageResult], params: ProcessParams) -> dic
         calibration_pairs=value("pose", "n_calibration_pairs"),
         calibration_inliers=value("pose", "n_calibration_inliers"),
         points=value("link", "n_points"),
+        points_sure=value("triangulate", "n_points_sure"),
         streaks=value("link", "n_streaks"),
         trajectories=value("link", "n_trajectories"),
     )

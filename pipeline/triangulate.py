@@ -29,6 +29,9 @@ IntArray = NDArray[np.int64]
 
 #: SNR assumed for detections that carry none (imported from another method).
 UNKNOWN_SNR = 10.0
+#: A point is sure of its range when ``range_sd_m`` is at most this share of ``range_m``
+#: (the project's 2 % accuracy target).
+SURE_RELATIVE_SD = 0.02
 
 
 @dataclass(frozen=True)

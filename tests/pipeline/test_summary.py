@@ -13,6 +13,7 @@ def test_summary_gathers_counts_calibration_tracking_warnings_and_timings() -> N
         Unit("link"): StageResult(
             {"n_points": 40, "n_streaks": 9, "n_trajectories": 3, "seconds": 0.1}
         ),
+        Unit("triangulate"): StageResult({"n_points": 40, "n_points_sure": 31}),
         Unit("sync"): StageResult(
             {
                 "delay_frames": -4,
@@ -50,6 +51,7 @@ def test_summary_gathers_counts_calibration_tracking_warnings_and_timings() -> N
         "calibration_pairs": 30,
         "calibration_inliers": 28,
         "points": 40,
+        "points_sure": 31,
         "streaks": 9,
         "trajectories": 3,
     }

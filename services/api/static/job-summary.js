@@ -8,6 +8,7 @@ const FIELDS = [
   ["counts.trajectories", "Trajectories"],
   ["counts.streaks", "Streaks"],
   ["counts.points", "Triangulated flashes"],
+  ["counts.points_sure", "Triangulated flashes sure of their range to 2 %"],
   ["clock.start_local", "Recording started (local time)"],
   ["clock.start_utc", "Recording started (UTC)"],
   ["clock.start_minutes_after_sunset", "Recording started after sunset", "min"],
