@@ -117,15 +117,17 @@ class Evidence:
             return cls(verdict=verdict, lit_frames=data["lit_frames"], chain=chain)
 
     @classmethod
-    def imported(cls, detections: Detections, confident_snr: float) -> Evidence:
+    def imported(cls, detections: Detections, width: int, params: AcceptanceParams) -> Evidence:
         """Evidence for detections made elsewhere: confident unless their SNR says faint.
 
-        Rows without an SNR (NaN) are taken as the flashes they were exported as.
+        Rows below ``params.confident_snr`` are doubtful, and stereo can confirm them
+        through their light curves (`spot_chains` within ``params.radius_deg``); rows
+        without an SNR (NaN) are taken as the flashes they were exported as.
         """
-        faint = detections.snr < confident_snr  # False for NaN
+        faint = detections.snr < params.confident_snr  # False for NaN
         verdict = np.where(faint, Verdict.DOUBTFUL, Verdict.CONFIDENT).astype(np.int8)
-        n = len(detections)
-        return cls(verdict=verdict, lit_frames=np.ones(n, np.int64), chain=np.arange(n))
+        chain = spot_chains(detections.frame, detections.x, detections.y, width, params.radius_deg)
+        return cls(verdict=verdict, lit_frames=steady_frames(detections.frame, chain), chain=chain)
 
 
 def spot_chains(

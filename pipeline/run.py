@@ -114,7 +114,7 @@ def reconstruct(
     params = params or ProcessParams()
     out_dir.mkdir(parents=True, exist_ok=True)
     det1, det2 = Detections.from_csv(flashes1), Detections.from_csv(flashes2)
-    import_detections({1: det1, 2: det2}, out_dir, params.acceptance.confident_snr)
+    import_detections({1: det1, 2: det2}, out_dir, width, params.acceptance)
     probed = probe_detections(det1, det2, width, height, fps, out_dir)
     outcome = RunOutcome(out_dir)
     outcome.results["probe"] = record(out_dir, Unit("probe"), probed, 0.0)

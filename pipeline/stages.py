@@ -40,7 +40,7 @@ from pipeline.clock import NightClock, night_clock
 from pipeline.detections import Detections
 from pipeline.graph import StageContext, StageResult, earlier_units, read_record
 from pipeline.jsonio import read_json, write_json
-from pipeline.params import ClassifierParams, validate_separation
+from pipeline.params import AcceptanceParams, ClassifierParams, validate_separation
 from pipeline.pose import calibrate_pose
 from pipeline.probe import StereoProbe
 from pipeline.results import (
@@ -226,11 +226,11 @@ def merge(ctx: StageContext) -> StageResult:
 
 
 def import_detections(
-    detections: Mapping[int, Detections], workdir: Path, confident_snr: float
+    detections: Mapping[int, Detections], workdir: Path, width: int, params: AcceptanceParams
 ) -> None:
     """Write detections made elsewhere as a run's candidates and evidence (`reconstruct`).
 
-    They are taken as flashes, except rows whose SNR is below `confident_snr`
+    They are taken as flashes, except rows whose SNR is below ``params.confident_snr``
     (`pipeline.acceptance.Evidence.imported`), which need stereo confirmation. Their
     positions are kept as given: our own flashes were refined along the light curve
     before they were written, and refining twice would smooth them twice.
@@ -240,7 +240,8 @@ def import_detections(
         path = workdir / CANDIDATES_NPZ.format(camera=camera)
         path.parent.mkdir(parents=True, exist_ok=True)
         ordered.to_npz(path)
-        Evidence.imported(ordered, confident_snr).save(workdir / EVIDENCE_NPZ.format(camera=camera))
+        evidence = Evidence.imported(ordered, width, params)
+        evidence.save(workdir / EVIDENCE_NPZ.format(camera=camera))
 
 
 def _candidates(

@@ -244,7 +244,10 @@ def test_bright_matches_are_confirmed_without_a_streak_and_stereo_can_be_off() -
 
 def test_imported_detections_are_confident_unless_faint() -> None:
     det = Detections.from_columns([0, 1, 2], [1.0, 2.0, 3.0], [1.0, 1.0, 1.0], snr=[np.nan, 20, 5])
-    assert Evidence.imported(det, 8.0).verdict.tolist() == [0, 0, 1]
+    evidence = Evidence.imported(det, WIDTH, AcceptanceParams(confident_snr=8.0))
+    assert evidence.verdict.tolist() == [0, 0, 1]
+    # Consecutive frames 1 px apart: one light curve, which stereo can confirm.
+    assert evidence.chain.tolist() == [0, 0, 0] and evidence.lit_frames.tolist() == [3, 3, 3]
 
 
 def test_evidence_round_trips_and_reads_earlier_files_without_chains(tmp_path) -> None:
