@@ -203,21 +203,18 @@ def range_sd(
     ndarray, shape (N,)
         Standard deviation of the distance, in units of the camera separation.
     """
-    step = 1e-6
+
+    def distance(b1: FloatArray, b2: FloatArray) -> FloatArray:
+        return np.linalg.norm(closest_approach(b1, b2, pose).midpoint, axis=-1)
+
+    step = 1e-6  # radians: central differences
     variance = np.zeros(len(bearing1))
-    for which, (bearing, sd) in enumerate(((bearing1, sd1), (bearing2, sd2))):
+    for camera, (bearing, sd) in enumerate(((bearing1, sd1), (bearing2, sd2))):
         for direction in _tangents(bearing):
-            moved = [_unit(bearing + sign * step * direction) for sign in (1.0, -1.0)]
-            plus, minus = (
-                closest_approach(m, bearing2, pose)
-                if which == 0
-                else closest_approach(bearing1, m, pose)
-                for m in moved
-            )
-            slope = (
-                np.linalg.norm(plus.midpoint, axis=-1) - np.linalg.norm(minus.midpoint, axis=-1)
-            ) / (2 * step)
-            variance += (slope * sd) ** 2
+            turned = [_unit(bearing + sign * step * direction) for sign in (1.0, -1.0)]
+            pairs = [(t, bearing2) if camera == 0 else (bearing1, t) for t in turned]
+            ahead, behind = (distance(*pair) for pair in pairs)
+            variance += ((ahead - behind) / (2 * step) * sd) ** 2
     return np.sqrt(variance)
 
 
