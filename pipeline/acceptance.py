@@ -352,11 +352,11 @@ def confirm(
 def _rises(
     group: NDArray[np.intp], weaker: NDArray[np.floating], params: AcceptanceParams
 ) -> BoolArray:
-    """Per stereo match: its group (a 3D streak, or a pair of light curves) spans at
-    least ``min_streak`` matches, one of which stands ``streak_peak_snr`` σ in both
-    cameras (`weaker`: the fainter camera's SNR, NaN for none known).
+    """Per stereo match: its group (the pair of light curves it joins) spans at least
+    ``min_streak`` matches, one of which stands ``streak_peak_snr`` σ in both cameras
+    (`weaker`: the fainter camera's SNR, NaN for none known).
 
-    A flash rises to a peak; wind-shaken leaves agree in 3D frame after frame too, but
+    A flash rises to a peak; wind-shaken leaves can agree frame after frame too, but
     stay faint.
     """
     if len(group) == 0:
