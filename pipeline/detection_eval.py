@@ -49,7 +49,7 @@ from pipeline.evaluate import (
 )
 from pipeline.results import read_trajectories
 from pipeline.simulate import GroundTruth
-from pipeline.triangulate import SURE_RELATIVE_SD
+from pipeline.triangulate import sure_of_range
 
 #: Version of the JSON layout written by ``firefly3d eval-detection --json``.
 SCHEMA_VERSION = 1
@@ -295,7 +295,7 @@ def uncertainty_figures(
     matched = np.isfinite(match.point_range)
     error = np.abs(point_range[matched] - match.point_range[matched])
     n_covered = int(np.count_nonzero(error <= COVERAGE_SDS * range_sd[matched]))
-    sure = range_sd <= SURE_RELATIVE_SD * point_range
+    sure = sure_of_range(range_sd, point_range)
     n_sure_true = int((sure & match.point_is_true).sum())
     return {
         "n_matched": int(matched.sum()),

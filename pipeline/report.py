@@ -27,7 +27,7 @@ from pipeline.params import PatternParams
 from pipeline.pattern_plots import pattern_plots
 from pipeline.probe import StereoProbe
 from pipeline.results import read_trajectories
-from pipeline.triangulate import SURE_RELATIVE_SD
+from pipeline.triangulate import SURE_RELATIVE_SD, sure_of_range
 
 
 def write_plots(workdir: Path, patterns: PatternParams | None = None) -> list[str]:
@@ -181,7 +181,7 @@ def plot_range_uncertainty(trajectories: dict[str, np.ndarray], path: Path) -> N
     limit = 100.0 * SURE_RELATIVE_SD
     ax.scatter(distance[known], relative[known], s=2, alpha=0.5)
     ax.axhline(limit, color="k", linewidth=0.8, linestyle="--")
-    sure = np.count_nonzero(relative[known] <= limit)
+    sure = np.count_nonzero(sure_of_range(sd, distance))
     ax.set(
         xlabel="range from camera 1 (m)",
         ylabel="range σ (% of range)",

@@ -55,7 +55,7 @@ from pipeline.summary import summarise
 from pipeline.sync import estimate_delay
 from pipeline.tracking import TrackingStats, track_with_stats
 from pipeline.trajectories import link as link_points
-from pipeline.triangulate import SURE_RELATIVE_SD
+from pipeline.triangulate import sure_of_range
 from pipeline.triangulate import triangulate as triangulate_points
 from pipeline.video import check_stereo_pair, probe_video
 
@@ -396,9 +396,7 @@ def triangulate(ctx: StageContext) -> StageResult:
         "n_points": len(points),
         "median_gap_m": float(np.median(points.gap_m)) if len(points) else None,
         "median_range_m": float(np.median(points.range_m)) if len(points) else None,
-        "n_points_sure": int(
-            np.count_nonzero(points.range_sd_m <= SURE_RELATIVE_SD * points.range_m)
-        ),
+        "n_points_sure": int(np.count_nonzero(sure_of_range(points.range_sd_m, points.range_m))),
     }
     warnings = [] if len(points) else ["no flash could be triangulated"]
     return StageResult(metrics=metrics, warnings=warnings)

@@ -34,6 +34,12 @@ UNKNOWN_SNR = 10.0
 SURE_RELATIVE_SD = 0.02
 
 
+def sure_of_range(range_sd_m: ArrayLike, range_m: ArrayLike) -> NDArray[np.bool_]:
+    """Points whose range standard deviation is at most `SURE_RELATIVE_SD` of their
+    range (False where it is unknown)."""
+    return np.asarray(range_sd_m) <= SURE_RELATIVE_SD * np.asarray(range_m)
+
+
 @dataclass(frozen=True)
 class Points3D:
     """Triangulated flashes, sorted by frame.
