@@ -10,7 +10,9 @@ Step 1, per camera (`assess`), from the candidate alone:
   moonlight through leaves, a twinkling reflection;
 * **light curve** — its spot stays lit for longer than a flash (`steady_frames`): a
   flash rises and falls within ~2–15 frames at 60 fps, a lamp or a glint held by the
-  wind does not;
+  wind does not. The frames where tracking found only a faint peak at the spot (between
+  ``tracking.lit_threshold`` and the seed level) count as lit: a glint is a candidate
+  only at its brightest moments, and faintly lit between them;
 * **recurrence** — its spot was as bright for a good share of the seconds before
   (`pipeline.recurrence`, measured while tracking): foliage swinging the sky or a
   glint in and out of a pixel, where a firefly only passes;
@@ -199,6 +201,7 @@ def assess(
     threshold: float | None,
     params: AcceptanceParams,
     flicker: FlickerParams,
+    faint: Detections | None = None,
 ) -> Evidence:
     """Step 1: the verdict on each candidate of one camera from its own evidence.
 
@@ -216,6 +219,11 @@ def assess(
         Levels of the evidence.
     flicker : FlickerParams
         The flicker test.
+    faint : Detections, optional
+        The camera's faint peaks (`pipeline.tracking.TrackingResult.faint_peaks`):
+        spots lit too faintly to be candidates. They join the light curves (so a
+        candidate's chain and lit frames include them) and the flicker duty; they get
+        no verdict.
 
     Returns
     -------
@@ -226,11 +234,16 @@ def assess(
     n = len(candidates)
     if not params.enabled:
         return Evidence(np.zeros(n, np.int8), np.ones(n, np.int64), np.arange(n))
-    chain = spot_chains(candidates.frame, candidates.x, candidates.y, width, params.radius_deg)
-    lit = steady_frames(candidates.frame, chain)
+    # Candidates first: rows [:n] of everything computed on `spots` are theirs.
+    spots = candidates if faint is None else Detections.concat([candidates, faint])
+    all_chains = spot_chains(spots.frame, spots.x, spots.y, width, params.radius_deg)
+    chain = all_chains[:n]
+    lit = steady_frames(spots.frame, all_chains)[:n]
     probability = candidates.flash_probability
-    # NaN: no SNR to doubt. A faint spot lit in one frame only is as likely grain.
-    needed = np.where(lit == 1, params.single_frame_snr, params.confident_snr)
+    # NaN: no SNR to doubt. A spot that is a candidate in one frame only is as likely
+    # grain (faint peaks around it do not count: grain makes them too).
+    one_frame = steady_frames(candidates.frame, chain) == 1
+    needed = np.where(one_frame, params.single_frame_snr, params.confident_snr)
     snr_ok = ~(candidates.snr < needed)
     if threshold is None:
         unlikely = np.zeros(n, bool)

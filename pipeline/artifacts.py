@@ -30,6 +30,8 @@ METRICS_DIR = "work/metrics"
 
 #: Detections of all candidates of one tracked frame range.
 CHUNK_NPZ = "work/tracking/cam{camera}/{start:08d}-{stop:08d}.npz"
+#: Faint peaks of one tracked frame range: spots lit below the candidates' seed level.
+FAINT_CHUNK_NPZ = "work/tracking/cam{camera}/faint/{start:08d}-{stop:08d}.npz"
 #: Metrics of one tracked frame range.
 CHUNK_METRICS_JSON = "work/tracking/cam{camera}/{start:08d}-{stop:08d}.json"
 #: Every candidate blob of a camera, with its flash probability.

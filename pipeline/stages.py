@@ -28,6 +28,7 @@ from pipeline.artifacts import (
     CHUNK_NPZ,
     CLOCK_JSON,
     EVIDENCE_NPZ,
+    FAINT_CHUNK_NPZ,
     FLASH_PATTERNS_CSV,
     FLASHES_CSV,
     POINTS_NPZ,
@@ -157,6 +158,9 @@ def track(ctx: StageContext) -> StageResult:
     out = ctx.path(CHUNK_NPZ)
     out.parent.mkdir(parents=True, exist_ok=True)
     result.detections.to_npz(out)
+    faint = ctx.path(FAINT_CHUNK_NPZ)
+    faint.parent.mkdir(parents=True, exist_ok=True)
+    result.faint_peaks.to_npz(faint, spots_only=True)
     metrics = {"camera": camera, "start": start, "stop": stop, **asdict(result.stats)}
     return StageResult(metrics=metrics)
 
@@ -180,11 +184,13 @@ def merge(ctx: StageContext) -> StageResult:
     Writes every candidate (``candidates_cam<c>.npz``, positions refined along the light
     curve: `pipeline.acceptance.refined`) and its step-1 evidence
     (``evidence_cam<c>.npz``: flicker, light curve, classifier, SNR;
-    `pipeline.acceptance.assess`).
+    `pipeline.acceptance.assess`, which also counts the chunks' faint peaks as lit).
     """
     camera = ctx.unit.camera
-    chunks = ctx.paths(CHUNK_NPZ)
-    missing = [p.relative_to(ctx.workdir).as_posix() for p in chunks if not p.exists()]
+    chunks, faint_chunks = ctx.paths(CHUNK_NPZ), ctx.paths(FAINT_CHUNK_NPZ)
+    missing = [
+        p.relative_to(ctx.workdir).as_posix() for p in (*chunks, *faint_chunks) if not p.exists()
+    ]
     if missing:
         raise FileNotFoundError(f"camera {camera}: tracking chunks missing: {', '.join(missing)}")
     # Canonical row order (frame, row, column): results then do not depend on how a
@@ -194,6 +200,7 @@ def merge(ctx: StageContext) -> StageResult:
     n_refined = int(np.count_nonzero((candidates.x != measured.x) | (candidates.y != measured.y)))
     candidates = candidates.sorted()
     threshold = accept_threshold(ctx.params.classifier)
+    faint = Detections.concat(Detections.from_npz(p) for p in faint_chunks)
     evidence = assess(
         candidates,
         ctx.probe.width,
@@ -201,6 +208,7 @@ def merge(ctx: StageContext) -> StageResult:
         threshold,
         ctx.params.acceptance,
         ctx.params.flicker,
+        faint,
     )
     candidates.to_npz(ctx.path(CANDIDATES_NPZ))
     evidence.save(ctx.path(EVIDENCE_NPZ))
@@ -211,6 +219,7 @@ def merge(ctx: StageContext) -> StageResult:
         "camera": camera,
         "n_chunks": len(chunks),
         "n_candidates": len(candidates),
+        "n_faint_peaks": len(faint),
         "n_refined_positions": n_refined,
         "verdicts": evidence.counts(),
         "threshold": threshold,

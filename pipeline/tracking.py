@@ -14,7 +14,10 @@ For every frame ``k`` of a camera, with luminance ``Y_k`` (0–255):
 4. hysteresis in units of ``σ``: 8-connected blobs of the pixels above
    ``extent_threshold · σ`` (the 360° seam included: column ``W − 1`` touches column 0);
    each local maximum reaching ``threshold · σ`` is a candidate, and a blob holding
-   several is split between them (one larger than ``max_area`` is dropped whole);
+   several is split between them (one larger than ``max_area`` is dropped whole); the
+   local maxima from ``lit_threshold · σ`` up to the seed level are kept apart as faint
+   peaks (frame, position, SNR): they are no candidates and split no blob, but tell the
+   acceptance stage that a spot is lit (`pipeline.acceptance.assess`);
 5. per candidate: the sub-pixel position ``(x, y) = (u, v)`` of its peak, from a
    Gaussian through the filter's response (pixel centres at integers, ``x`` wrapped into
    ``[0, W)``), and at full resolution its area, its peak foreground, its SNR (largest
@@ -125,6 +128,10 @@ class TrackingStats:
         Blobs beyond ``max_candidates_per_frame``.
     flooded_frames : int
         Frames with more than ``max_foreground_px`` candidate pixels.
+    faint_peaks : int
+        Faint peaks returned (between ``lit_threshold`` and ``threshold``).
+    faint_over_cap : int
+        Faint peaks beyond ``max_faint_peaks_per_frame``.
     """
 
     frames: int
@@ -133,13 +140,21 @@ class TrackingStats:
     dropped_by_area: int
     dropped_over_cap: int
     flooded_frames: int
+    faint_peaks: int = 0
+    faint_over_cap: int = 0
 
 
 @dataclass(frozen=True)
 class TrackingResult:
-    """Candidates of a tracked range and what was dropped on the way."""
+    """Candidates of a tracked range, its faint peaks and what was dropped on the way.
+
+    ``faint_peaks`` are the local maxima between ``lit_threshold`` and ``threshold`` σ
+    (frame, position and SNR only; never classified): too faint to be candidates, they
+    still tell the acceptance stage that a spot is lit (`pipeline.acceptance.assess`).
+    """
 
     detections: Detections
+    faint_peaks: Detections
     stats: TrackingStats
 
 
@@ -194,21 +209,24 @@ def track_with_stats(
     first, _ = frames_read(start, stop, info.fps, params)
     detector = _FrameDetector(info, params, start)
     scorer = _PatchScorer(classifier)
-    rows = _RowCollector()
+    rows, faint_rows = _RowCollector(), _RowCollector()
     counter = _ProgressCounter(progress)
     with _opencv_threads(1):
         for frame in iter_frames(info, first, stop):
-            blobs = detector.process(frame)
-            if blobs is None:
+            found = detector.process(frame)
+            if found is None:
                 continue
-            rows.add(frame.index, blobs, detector.recurrence(blobs))
+            blobs, faint = found
+            rows.add(_candidate_rows(frame.index, blobs, detector.recurrence(blobs)))
+            faint_rows.add(_faint_rows(frame.index, faint))
             scorer.add(frame, blobs)
             counter.step()
         counter.finish()
     detections = rows.result()
     if classifier is not None:
         detections = detections.with_probability(scorer.result())
-    stats = detector.stats(stop - start, start - first, len(detections))
+    faint_peaks = faint_rows.result()
+    stats = detector.stats(stop - start, start - first, len(detections), len(faint_peaks))
     if stats.dropped_over_cap or stats.flooded_frames:
         logger.warning(
             "frames [%d, %d): %d blobs dropped over the per-frame cap, %d flooded frames",
@@ -217,7 +235,7 @@ def track_with_stats(
             stats.dropped_over_cap,
             stats.flooded_frames,
         )
-    return TrackingResult(detections, stats)
+    return TrackingResult(detections, faint_peaks, stats)
 
 
 @contextmanager
@@ -265,13 +283,14 @@ class _FrameDetector:
         self._level: tuple[NDArray[np.float32], NDArray[np.float32]] | None = None
         self._dropped_by_area = 0
         self._dropped_over_cap = 0
+        self._faint_over_cap = 0
         self._flooded = 0
 
-    def process(self, frame: Frame) -> Blobs | None:
-        """Blobs of `frame`, or None for a warm-up frame before the range."""
+    def process(self, frame: Frame) -> tuple[Blobs, FaintPeaks] | None:
+        """Blobs and faint peaks of `frame`, or None for a warm-up frame before the range."""
         image = _blur(frame.y, self._params.blur_px) if self._params.blur_px > 0 else frame.y
         small = bin_image(image, self._bin)
-        blobs: Blobs | None = None
+        found: tuple[Blobs, FaintPeaks] | None = None
         for lane, tracks in self._lanes.at(frame.index):
             foreground = lane.background.foreground(small)
             if foreground is not None:
@@ -280,13 +299,13 @@ class _FrameDetector:
                     lane.noise.update(filtered)
                 if tracks and frame.index >= self._start:
                     sigma = lane.noise.pixel_sigma(self._binned, self._params.min_noise)
-                    blobs = self._detect(filtered, sigma, image, lane.background.level())
+                    found = self._detect(filtered, sigma, image, lane.background.level())
             lane.background.update(small)
         self._history.add(frame.index, small)
         self._last = (frame.index, small)
-        if blobs is None and frame.index >= self._start:
-            blobs = Blobs.empty()  # nothing seen yet: the frame is its own background
-        return blobs
+        if found is None and frame.index >= self._start:
+            found = (Blobs.empty(), FaintPeaks.empty())  # the frame is its own background
+        return found
 
     def recurrence(self, blobs: Blobs) -> NDArray[np.float32]:
         """`BrightHistory.recurrence` of the blobs of the last frame processed."""
@@ -296,7 +315,9 @@ class _FrameDetector:
         cols = ((blobs.x + 0.5) // self._bin).astype(np.intp) % self._binned[1]
         return self._history.recurrence(k, small, rows, cols)
 
-    def stats(self, frames: int, warmup_frames: int, candidates: int) -> TrackingStats:
+    def stats(
+        self, frames: int, warmup_frames: int, candidates: int, faint_peaks: int
+    ) -> TrackingStats:
         return TrackingStats(
             frames=frames,
             warmup_frames=warmup_frames,
@@ -304,6 +325,8 @@ class _FrameDetector:
             dropped_by_area=self._dropped_by_area,
             dropped_over_cap=self._dropped_over_cap,
             flooded_frames=self._flooded,
+            faint_peaks=faint_peaks,
+            faint_over_cap=self._faint_over_cap,
         )
 
     def _detect(
@@ -312,10 +335,10 @@ class _FrameDetector:
         sigma: NDArray[np.float32],
         luma: NDArray[np.uint8],
         background: NDArray[np.float32],
-    ) -> Blobs:
+    ) -> tuple[Blobs, FaintPeaks]:
         idx, snr = self._extent_pixels(filtered, sigma, background)
         idx, snr = self._limit_pixels(idx, snr)
-        labels, blob_snr, peak = self._seeded(idx, snr)
+        labels, blob_snr, peak, (faint_idx, faint_snr) = self._seeded(idx, snr)
         area = np.bincount(labels[labels >= 0], minlength=len(blob_snr)) * self._bin**2
         keep = self._filter(area, blob_snr)
         inside = np.isin(labels, keep)
@@ -326,7 +349,10 @@ class _FrameDetector:
         full_idx, full_labels = upsample(idx, labels, width, self._bin)
         rows, cols = np.divmod(full_idx, luma.shape[1])
         values = luma[rows, cols] - background[rows // self._bin, cols // self._bin]
-        return measure(full_idx, full_labels, values, luma, blob_snr[keep], x, y)
+        blobs = measure(full_idx, full_labels, values, luma, blob_snr[keep], x, y)
+        faint_idx, faint_snr = self._faint_cap(faint_idx, faint_snr)
+        faint_x, faint_y = subpixel_peak(filtered, faint_idx, self._bin)
+        return blobs, FaintPeaks(faint_x, faint_y, faint_snr)
 
     def _extent_pixels(
         self,
@@ -368,13 +394,22 @@ class _FrameDetector:
 
     def _seeded(
         self, idx: NDArray[np.intp], snr: NDArray[np.float64]
-    ) -> tuple[NDArray[np.intp], NDArray[np.float64], NDArray[np.intp]]:
-        """Candidate labels of the pixels (-1: no seed), each candidate's SNR and peak.
+    ) -> tuple[
+        NDArray[np.intp],
+        NDArray[np.float64],
+        NDArray[np.intp],
+        tuple[NDArray[np.intp], NDArray[np.float64]],
+    ]:
+        """Candidate labels of the pixels (-1: no seed), each candidate's SNR and peak,
+        and the faint peaks (flat index, SNR).
 
         A candidate is a local maximum of the SNR reaching the seed level; a blob
         holding several (two flashes side by side, a flash on a bright rim) is split
         between them, nearest peak first. A blob larger than ``max_area`` (a lamp,
-        headlights) is dropped whole, however many peaks its plateau has.
+        headlights) is dropped whole, however many peaks its plateau has. A local
+        maximum from ``lit_threshold`` up to the seed level is a faint peak: it neither
+        splits a blob nor becomes a candidate (a maximum is one against every pixel
+        around it, so the candidates are the same with or without faint peaks).
         """
         width = self._binned[1]
         radius = max(1, math.ceil(2 * self._params.matched_sigma_px))
@@ -382,10 +417,25 @@ class _FrameDetector:
         area = np.bincount(blobs) * self._bin**2 if len(blobs) else np.zeros(0, np.intp)
         too_large = area > self._params.max_area
         self._dropped_by_area += int(np.count_nonzero(too_large))
-        seeds = (snr >= self._params.threshold) & ~too_large[blobs]
-        peaks = local_maxima(idx, snr, width, radius, seeds)
+        threshold = self._params.threshold
+        lowest = min(threshold, self._params.lit_threshold or threshold)
+        maxima = local_maxima(idx, snr, width, radius, (snr >= lowest) & ~too_large[blobs])
+        peaks = maxima & (snr >= threshold)
+        faint = np.flatnonzero(maxima & (snr < threshold))
         labels = split_at_peaks(idx, blobs, peaks, width)
-        return labels, snr[peaks], idx[peaks]
+        return labels, snr[peaks], idx[peaks], (idx[faint], snr[faint])
+
+    def _faint_cap(
+        self, idx: NDArray[np.intp], snr: NDArray[np.float64]
+    ) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+        """At most ``max_faint_peaks_per_frame`` faint peaks, the highest SNR first,
+        in raster order."""
+        cap = self._params.max_faint_peaks_per_frame
+        if len(idx) <= cap:
+            return idx, snr
+        self._faint_over_cap += len(idx) - cap
+        kept = np.sort(np.argsort(-snr, kind="stable")[:cap])
+        return idx[kept], snr[kept]
 
     def _filter(self, area: NDArray[np.intp], snr: NDArray[np.float64]) -> NDArray[np.intp]:
         """Labels of the candidates within the area bounds, at most the per-frame cap of
@@ -411,8 +461,50 @@ def _blur(y: NDArray[np.uint8], sigma: float) -> NDArray[np.uint8]:
 # -- accumulation across frames --------------------------------------------------------
 
 
+@dataclass(frozen=True)
+class FaintPeaks:
+    """Local maxima of one frame between ``lit_threshold`` and ``threshold`` σ.
+
+    Attributes
+    ----------
+    x, y : float64
+        Sub-pixel peak of the matched filter's response, pixels (`subpixel_peak`).
+    snr : float64
+        That response in units of the noise σ.
+    """
+
+    x: NDArray[np.float64]
+    y: NDArray[np.float64]
+    snr: NDArray[np.float64]
+
+    @classmethod
+    def empty(cls) -> FaintPeaks:
+        return cls(np.zeros(0), np.zeros(0), np.zeros(0))
+
+
+def _candidate_rows(frame_index: int, blobs: Blobs, recurrence: NDArray[np.float32]) -> Detections:
+    return Detections.from_columns(
+        np.full(len(blobs), frame_index),
+        blobs.x,
+        blobs.y,
+        area=blobs.area,
+        peak=blobs.peak,
+        peak_x=blobs.peak_x,
+        peak_y=blobs.peak_y,
+        snr=blobs.snr,
+        recurrence=recurrence,
+    )
+
+
+def _faint_rows(frame_index: int, faint: FaintPeaks) -> Detections:
+    """Faint peaks as detection rows: frame, position and SNR; the rest neutral."""
+    return Detections.from_columns(
+        np.full(len(faint.x), frame_index), faint.x, faint.y, snr=faint.snr
+    )
+
+
 class _RowCollector:
-    """Per-frame blobs gathered into one table; compacted as it grows."""
+    """Per-frame rows gathered into one table; compacted as it grows."""
 
     _COMPACT_EVERY = 256
 
@@ -420,22 +512,10 @@ class _RowCollector:
         self._parts: list[Detections] = []
         self._recent: list[Detections] = []
 
-    def add(self, frame_index: int, blobs: Blobs, recurrence: NDArray[np.float32]) -> None:
-        if len(blobs) == 0:
+    def add(self, rows: Detections) -> None:
+        if len(rows) == 0:
             return
-        self._recent.append(
-            Detections.from_columns(
-                np.full(len(blobs), frame_index),
-                blobs.x,
-                blobs.y,
-                area=blobs.area,
-                peak=blobs.peak,
-                peak_x=blobs.peak_x,
-                peak_y=blobs.peak_y,
-                snr=blobs.snr,
-                recurrence=recurrence,
-            )
-        )
+        self._recent.append(rows)
         if len(self._recent) >= self._COMPACT_EVERY:
             self._parts.append(Detections.concat(self._recent))
             self._recent = []

@@ -102,6 +102,54 @@ def test_a_faint_spot_lit_in_one_frame_only_is_doubtful() -> None:
     assert verdict.tolist() == expected
 
 
+def _faint(frames: NDArray[np.int64], x: float, y: float, snr: float = 3.5) -> Detections:
+    n = len(frames)
+    return Detections.from_columns(frames, np.full(n, x), np.full(n, y), snr=np.full(n, snr))
+
+
+def test_faint_peaks_join_light_curves_but_get_no_verdict() -> None:
+    rows = [
+        *_flash(100, 200, 60, 5, 0.95, 20.0),  # a wind-held glint, bright for 5 frames...
+        *_flash(300, 300, 70, 5, 0.95, 20.0),  # a flash, rising out of and back into grain
+        *_flash(500, 400, 80, 1, 0.95, 10.0),  # 10 σ in one frame, faint before and after
+    ]
+    candidates = _candidates(rows)
+    faint = Detections.concat(
+        [
+            _faint(np.r_[60:100, 105:150], 200.8, 60.0),  # ...and faintly lit 1.5 s around
+            _faint(np.r_[298:300, 305:307], 300.5, 70.0),
+            _faint(np.r_[498:500, 501:503], 400.2, 80.0),
+        ]
+    )
+    params = AcceptanceParams(confident_snr=8.0, single_frame_snr=12.0)
+    alone = assess(candidates, WIDTH, FPS, THRESHOLD, params, FlickerParams())
+    assert alone.verdict.tolist() == [Verdict.CONFIDENT] * 10 + [Verdict.DOUBTFUL]
+    evidence = assess(candidates, WIDTH, FPS, THRESHOLD, params, FlickerParams(), faint)
+    assert len(evidence) == len(candidates)
+    assert np.all(evidence.verdict[:5] == Verdict.STEADY) and evidence.lit_frames[0] == 90
+    assert np.all(evidence.verdict[5:10] == Verdict.CONFIDENT)
+    assert np.all(evidence.lit_frames[5:10] == 9)
+    # Grain lights faint peaks too: a candidate in one frame still needs single_frame_snr.
+    assert evidence.verdict[10] == Verdict.DOUBTFUL and evidence.lit_frames[10] == 5
+    # The chains are the candidates' own with the faint frames bridged in.
+    assert len(set(evidence.chain[5:10].tolist())) == 1
+    assert evidence.chain[0] != evidence.chain[5] != evidence.chain[10]
+
+
+def test_faint_peaks_do_not_count_as_flicker() -> None:
+    # Grain and sway light faint peaks around many spots; as flicker they cost flashes
+    # (tuning nights, docs/detection.md). A flash train over a shimmering spot stays.
+    rng = np.random.default_rng(3)
+    flashes = np.r_[1000:1005, 1060:1065, 1120:1125]
+    train = _candidates([(int(k), 50.0, 150.0, 0.95, 20.0) for k in flashes])
+    shimmer = np.setdiff1d(np.flatnonzero(rng.random(200) < 0.7) + 980, flashes)
+    params = AcceptanceParams()
+    verdict = assess(
+        train, WIDTH, FPS, THRESHOLD, params, FlickerParams(), _faint(shimmer, 50.0, 150.0)
+    ).verdict
+    assert np.all(verdict == Verdict.CONFIDENT)
+
+
 def test_a_spot_often_as_bright_before_is_rejected_unless_already_rejected() -> None:
     rows = [
         *_flash(0, 100, 50, 3, 0.95, 20.0),  # confident, but its spot recurs

@@ -62,6 +62,21 @@ def test_npz_round_trip_is_exact(tmp_path) -> None:
         np.testing.assert_array_equal(getattr(back, name), col)
 
 
+def test_spots_only_npz_keeps_frame_position_and_snr(tmp_path) -> None:
+    det = Detections.from_columns(
+        [3, 3, 900_000], [0.123456, 7679.987, 12.5], [1.5, 3839.25, 0.0], snr=[3.2, 3.9, 3.0]
+    )
+    det.to_npz(tmp_path / "spots.npz", spots_only=True)
+    with np.load(tmp_path / "spots.npz") as data:
+        assert sorted(data.files) == ["frame", "snr", "x", "y"]
+    back = Detections.from_npz(tmp_path / "spots.npz")
+    np.testing.assert_array_equal(back.frame, det.frame)
+    np.testing.assert_allclose(back.x, det.x, atol=1e-3)
+    np.testing.assert_allclose(back.y, det.y, atol=1e-3)
+    np.testing.assert_array_equal(back.snr, det.snr)
+    assert np.isnan(back.flash_probability).all() and np.all(back.area == 1)
+
+
 def test_counts_concat_select() -> None:
     det = _sample(6)
     np.testing.assert_array_equal(det.counts_per_frame(4), [2, 2, 2, 0])

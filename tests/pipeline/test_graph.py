@@ -92,6 +92,7 @@ def test_templates_expand_per_unit() -> None:
     ]
     assert graph.writes(Unit("track", 1, 0, 180)) == [
         "work/tracking/cam1/00000000-00000180.npz",
+        "work/tracking/cam1/faint/00000000-00000180.npz",
         "work/tracking/cam1/00000000-00000180.json",
     ]
 

@@ -264,23 +264,34 @@ CUTS = [
 ]
 
 
+def _in_range(rows: Detections, start: int, stop: int) -> Detections:
+    return rows.select((rows.frame >= start) & (rows.frame < stop))
+
+
+def _assert_same_rows(actual: Detections, expected: Detections) -> None:
+    for name, column in expected.columns().items():
+        assert np.array_equal(getattr(actual, name), column, equal_nan=True), name
+
+
 @pytest.mark.parametrize("background", ["ewma", "box"])
 @pytest.mark.parametrize("cuts", CUTS, ids=lambda c: "-".join(map(str, c)))
 def test_chunks_equal_the_unchunked_run_bit_for_bit(
     flickering: VideoInfo, background: str, cuts: list[int]
 ) -> None:
     params = FAST.model_copy(update={"background": background})
-    whole = track(flickering, params=params, classifier=CentreBrightness())
-    assert len(whole) > 150
+    whole = track_with_stats(flickering, params=params, classifier=CentreBrightness())
+    assert len(whole.detections) > 150 and len(whole.faint_peaks) > 20
     parts = [
-        track(flickering, a, b, params, classifier=CentreBrightness())
+        track_with_stats(flickering, a, b, params, classifier=CentreBrightness())
         for a, b in itertools.pairwise(cuts)
     ]
-    chunked = Detections.concat(parts)
-    expected = whole.select((whole.frame >= cuts[0]) & (whole.frame < cuts[-1]))
+    expected = _in_range(whole.detections, cuts[0], cuts[-1])
     assert np.isfinite(expected.recurrence).mean() > 0.5  # measured once the past fills
-    for name, column in expected.columns().items():
-        assert np.array_equal(getattr(chunked, name), column, equal_nan=True), name
+    _assert_same_rows(Detections.concat(p.detections for p in parts), expected)
+    _assert_same_rows(
+        Detections.concat(p.faint_peaks for p in parts),
+        _in_range(whole.faint_peaks, cuts[0], cuts[-1]),
+    )
 
 
 @pytest.mark.parametrize("background", ["ewma", "box"])
@@ -361,6 +372,36 @@ def test_opencv_runs_on_one_thread_while_tracking_and_is_restored(
     track(flickering, 25, 35, FAST, progress=lambda _: seen.append(cv2.getNumThreads()))
     assert seen and set(seen) == {1}
     assert cv2.getNumThreads() == 2
+
+
+def test_spots_between_the_lit_and_seed_levels_are_faint_peaks(tmp_path: Path) -> None:
+    # Clean video and a fixed noise σ of 2 grey levels: a σ = 1 px spot of amplitude A
+    # peaks at A / 2 after the σ = 1 px matched filter, i.e. A / 4 σ.
+    u, v, amplitude = [100.3, 300.6, 500.2], [80.4, 160.7, 240.1], [14.0, 40.0, 8.0]
+    spot = vf.gaussian_spots(H, W, u, v, amplitude, 1.0, BACKGROUND)
+    pictures = [np.full((H, W), BACKGROUND, np.uint8)] * 10 + [spot]
+    info = probe_video([vf.write_video(tmp_path / "faint.mp4", pictures, crf=4)])
+    fixed = FAST.model_copy(update={"min_noise": 2.0, "relative_noise": 0.0})
+    result = track_with_stats(info, params=fixed)
+    # Above the seed level (4 σ): a candidate; from 3 σ: a faint peak; below: nothing.
+    assert len(result.detections) == 1 and abs(result.detections.x[0] - 300.6) < 0.2
+    assert result.detections.snr[0] == pytest.approx(10.0, rel=0.1)
+    faint = result.faint_peaks
+    assert len(faint) == 1 and result.stats.faint_peaks == 1
+    assert abs(faint.x[0] - 100.3) < 0.3 and abs(faint.y[0] - 80.4) < 0.3
+    assert faint.frame[0] == 10 and 3.0 <= faint.snr[0] < 4.0
+    assert np.isnan(faint.flash_probability[0])
+    # Faint peaks are kept apart: without them the candidates are the same.
+    off = track_with_stats(info, params=fixed.model_copy(update={"lit_threshold": None}))
+    assert len(off.faint_peaks) == 0
+    _assert_same_rows(off.detections, result.detections)
+    # A lower seed level makes the faint spot a candidate; its faint peak is gone.
+    low = track_with_stats(info, params=fixed.model_copy(update={"threshold": 3.0}))
+    assert len(low.detections) == 2 and len(low.faint_peaks) == 0
+    capped = track_with_stats(
+        info, params=fixed.model_copy(update={"max_faint_peaks_per_frame": 0})
+    )
+    assert len(capped.faint_peaks) == 0 and capped.stats.faint_over_cap == 1
 
 
 def test_flooded_frame_is_capped_and_counted(tmp_path: Path) -> None:
