@@ -177,16 +177,17 @@ def cached_recording(config: SimulationConfig, cache: Path, quiet: bool = True) 
 
 
 def load_truth_for_eval(recording: Path) -> GroundTruth:
-    """The recording's truth; truth files written before the SNR/range columns existed
-    get them recomputed from their configuration (checked to describe the same
-    flashes)."""
+    """The recording's truth; truth files written before the SNR/range columns (or the
+    matched-filter SNR) existed get them recomputed from their configuration (checked
+    to describe the same flashes)."""
     import numpy as np
 
     from pipeline.simulate import SimulationConfig, ground_truth, load_truth
 
     truth = load_truth(recording)
     f = truth.flashes
-    if len(f) == 0 or not np.all(np.isnan(f.snr1)) or "config" not in truth.extra:
+    complete = not (np.all(np.isnan(f.snr1)) or np.all(np.isnan(f.snr_mf1)))
+    if len(f) == 0 or complete or "config" not in truth.extra:
         return truth
     fresh = ground_truth(SimulationConfig.model_validate(truth.extra["config"]))
     same = len(fresh.flashes) == len(f) and np.allclose(

@@ -36,6 +36,7 @@ from pipeline.simulation.real3d import real_emissions
 from pipeline.simulation.render import peak_weight, spot_peak, spot_sigma
 from pipeline.simulation.rig import Rig, draw_rig, stream
 from pipeline.simulation.scene import CameraRenderer, Scene, build_scene
+from pipeline.simulation.snr import matched_filter_snr
 from pipeline.simulation.tables import ArtifactTruth, FlashTruth
 from pipeline.simulation.truth import GroundTruth
 
@@ -305,15 +306,28 @@ def flash_truth(emitted: Emissions, rig: Rig, config: SimulationConfig) -> Flash
 
 
 def with_noise(flashes: FlashTruth, scene: Scene, config: SimulationConfig) -> FlashTruth:
-    """``flashes`` with the noise σ at each flash's pixel (``noise1``, ``noise2``) and
-    the peak signal-to-noise ratios ``snr1 = amp1 / noise1``, ``snr2``."""
+    """``flashes`` with the noise σ at each flash's pixel (``noise1``, ``noise2``), the
+    peak signal-to-noise ratios ``snr1 = amp1 / noise1``, ``snr2``, and the SNR at a
+    matched filter's peak (``snr_mf1``, ``snr_mf2``: `matched_filter_snr`)."""
     columns = {}
     for camera in (1, 2):
         frame, u, v, _ = flashes.in_camera(camera)
-        noise = scene.noise_at(camera, frame, u, v, config.resolved_noise_sigma, config.grain_sigma)
+        read = config.resolved_noise_sigma
+        noise = scene.noise_at(camera, frame, u, v, read, config.grain_sigma)
         columns[f"noise{camera}"] = noise
         amp = flashes.camera_column("amp", camera)
         columns[f"snr{camera}"] = amp / np.maximum(noise, 1e-9)
+        streak = np.hypot(
+            flashes.camera_column("streak_u", camera), flashes.camera_column("streak_v", camera)
+        )
+        columns[f"snr_mf{camera}"] = matched_filter_snr(
+            amp,
+            flashes.camera_column("psf", camera),
+            streak,
+            scene.noise_at(camera, frame, u, v, read),  # white: read and shot noise
+            config.grain_sigma,
+            config.grain_px,
+        )
     return dataclasses.replace(flashes, **columns)
 
 

@@ -32,6 +32,7 @@ from pipeline.simulation.render import (
     streak_weights,
 )
 from pipeline.simulation.rig import Rig, stream
+from pipeline.simulation.snr import grain_kernel
 from pipeline.simulation.tables import ArtifactTruth, FlashTruth
 
 #: Shot noise: variance added per unit of luma (photon noise after gain).
@@ -319,8 +320,7 @@ class CameraRenderer:
         assert self.grain_rng is not None
         shape = self.background.static.shape[:2]
         white = self.grain_rng.standard_normal(shape, dtype=np.float32)
-        size = 2 * int(np.ceil(4 * self.grain_px)) + 1
-        kernel = cv2.getGaussianKernel(size, self.grain_px, cv2.CV_64F).ravel()
+        kernel = grain_kernel(self.grain_px)
         smooth = np.asarray(
             cv2.sepFilter2D(white, -1, kernel, kernel, borderType=cv2.BORDER_REFLECT),
             dtype=np.float32,

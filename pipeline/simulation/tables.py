@@ -179,6 +179,10 @@ class FlashTruth(Table):
         noise of the background, grain), same scale as ``amp``.
     snr1, snr2 : float64
         Peak signal-to-noise ratio ``amp / noise``.
+    snr_mf1, snr_mf2 : float64
+        The SNR at the peak of a σ = 1 px Gaussian matched filter against the same
+        sensor noise, with the grain's spatial correlation
+        (`pipeline.simulation.snr.matched_filter_snr`).
     """
 
     flash_id: np.ndarray
@@ -213,6 +217,8 @@ class FlashTruth(Table):
     noise2: np.ndarray = None  # type: ignore[assignment]
     snr1: np.ndarray = None  # type: ignore[assignment]
     snr2: np.ndarray = None  # type: ignore[assignment]
+    snr_mf1: np.ndarray = None  # type: ignore[assignment]
+    snr_mf2: np.ndarray = None  # type: ignore[assignment]
 
     OPTIONAL: ClassVar[tuple[str, ...]] = (
         "range1",
@@ -230,6 +236,8 @@ class FlashTruth(Table):
         "noise2",
         "snr1",
         "snr2",
+        "snr_mf1",
+        "snr_mf2",
     )
     DTYPES: ClassVar[dict[str, Any]] = {
         "flash_id": np.int64,
@@ -276,6 +284,8 @@ class FlashTruth(Table):
         "noise2": "%.4f",
         "snr1": "%.3f",
         "snr2": "%.3f",
+        "snr_mf1": "%.3f",
+        "snr_mf2": "%.3f",
     }
 
     def position(self) -> NDArray[np.float64]:

@@ -54,6 +54,9 @@ def hand_truth() -> GroundTruth:
         range2=np.linalg.norm(position, axis=1),
         snr1=snr1,
         snr2=snr1 + 1.0,
+        # Grain: a matched filter sees less; row 1 (missed) stays above 5 σ.
+        snr_mf1=np.array([1.0, 6.0, 4.0, 20.0, 8.0]),
+        snr_mf2=snr1 / 2,
     )
     artifacts = ArtifactTruth(
         camera=[1], frame=[3], u=[52.0], v=[100.0], radius=[3.0], kind=["glint"]
@@ -108,6 +111,9 @@ def test_detection_figures_on_hand_made_truth() -> None:
     assert figures["n_truth"] == 4  # the hidden row does not count
     assert figures["n_found"] == 3 and figures["recall"] == 0.75  # row 1 missed (3 px off)
     assert figures["n_truth_snr_ge5"] == 2 and figures["recall_snr_ge5"] == 1.0
+    assert figures["n_truth_mf_snr_ge5"] == 2 and figures["recall_mf_snr_ge5"] == 0.5
+    mf = by_label(figures["by_mf_snr"])
+    assert [(mf[k]["n"], mf[k]["found"]) for k in mf] == [(1, 1), (1, 1), (1, 0), (0, 0), (1, 1)]
     assert figures["n_detections"] == 6 and figures["n_true"] == 3
     assert figures["precision"] == 0.5
     assert figures["per_frame"] == 1.5 and figures["false_per_frame"] == 0.75
