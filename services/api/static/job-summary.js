@@ -64,6 +64,8 @@ const FIELDS = [
   ["tracking.cam{c}.flooded_frames", "Frames too bright to track, camera {c}"],
   ["tracking.cam{c}.dropped_by_area", "Blobs too small or large, camera {c}"],
   ["tracking.cam{c}.dropped_over_cap", "Blobs over the per-frame cap, camera {c}"],
+  ["tracking.cam{c}.faint_peaks", "Faint peaks (lit below the seed level), camera {c}"],
+  ["tracking.cam{c}.faint_over_cap", "Faint peaks over the per-frame cap, camera {c}"],
   ["tracking.cam{c}.seconds", "Tracking time, camera {c}", "s"],
   ["tracking.cam{c}.fps", "Tracking speed, camera {c}", "frames/s"],
   ["timings_s.{s}", "Time, {s}", "s"],
