@@ -4,9 +4,16 @@ Thresholds in units of the noise make detection follow the sensor: a clean frame
 finds flashes a few grey levels above its background, a grainy or wind-shaken one is
 not flooded with candidates. The noise is measured on the *negative* half of the
 filtered foreground ``F`` (frame minus background): flashes only add light, so they
-cannot inflate it, while sensor grain and swaying foliage move both ways. For
-zero-mean Gaussian noise of deviation ``σ``, ``E[max(−F, 0)] = σ / √(2π)``; the tile
-means of ``max(−F, 0)`` of every `SAMPLE_EVERY`-th frame are averaged over a window.
+cannot inflate it, while sensor grain and swaying foliage move both ways. ``F`` is not
+always centred on zero: a sky darkening at dusk leaves the running background a little
+brighter than the frame. For Gaussian noise of mean ``μ`` and deviation ``σ``, the
+share of negative pixels is ``p = Φ(−t)`` with ``t = μ/σ``, and
+``E[max(−F, 0)] = σ (φ(t) − t Φ(−t))``, which is ``σ / √(2π)`` at ``μ = 0``. Both are
+measured on the negative side: the tile means of ``max(−F, 0)`` and of ``F < 0`` of
+every `SAMPLE_EVERY`-th frame are averaged over a window, and ``σ`` follows in closed
+form (`negative_side_sigma`). A flash changes ``p`` only by the pixels it covers,
+however bright it is. Taking ``μ = 0`` made the estimate 1.9 times the true deviation
+in the median tile of a simulated dusk (hard-all), 3.6 times in one tile of ten.
 
 The running sum is kept in integers (tile means quantised to 1/1024 grey level), so
 the estimate does not depend on how many frames the window has slid over: a frame
@@ -20,6 +27,7 @@ import math
 import cv2
 import numpy as np
 from numpy.typing import NDArray
+from scipy.special import ndtri
 
 _QUANTUM = 1024.0
 
@@ -47,8 +55,9 @@ class TileNoise:
     """
 
     def __init__(self, grid: tuple[int, int], window: int) -> None:
-        self._ring = np.zeros((max(1, window), *grid), np.int64)
-        self._sum = np.zeros(grid, np.int64)
+        # Per sample and tile: the quantised means of max(−F, 0) and of F < 0.
+        self._ring = np.zeros((max(1, window), 2, *grid), np.int64)
+        self._sum = np.zeros((2, *grid), np.int64)
         self._n = 0
         self._next = 0
         self._map: NDArray[np.float32] | None = None
@@ -60,11 +69,18 @@ class TileNoise:
 
     def update(self, foreground: NDArray[np.float32]) -> None:
         """Add one frame's filtered foreground (grey levels, signed)."""
-        rows, cols = self._sum.shape
+        _, rows, cols = self._sum.shape
         _, negative = cv2.threshold(foreground, 0.0, 0.0, cv2.THRESH_TOZERO_INV)  # min(F, 0)
         # INTER_AREA over a whole-image shrink averages each tile's pixels.
-        means = cv2.resize(negative, (cols, rows), interpolation=cv2.INTER_AREA)
-        quantised = np.rint(-means.astype(np.float64) * _QUANTUM).astype(np.int64)
+        # Share of F < 0, ties at 0 counted half: clean video holds many exact zeros.
+        below = 0.5 - 0.5 * np.sign(foreground)
+        means = np.stack(
+            [
+                -cv2.resize(negative, (cols, rows), interpolation=cv2.INTER_AREA),
+                cv2.resize(below, (cols, rows), interpolation=cv2.INTER_AREA),
+            ]
+        )
+        quantised = np.rint(means.astype(np.float64) * _QUANTUM).astype(np.int64)
         if self._n == len(self._ring):
             self._sum -= self._ring[self._next]
         else:
@@ -77,9 +93,9 @@ class TileNoise:
     def sigma(self) -> NDArray[np.float32]:
         """Current ``σ`` per tile in grey levels (zeros before the first frame)."""
         if self._n == 0:
-            return np.zeros(self._sum.shape, np.float32)
-        mean_negative = self._sum / (self._n * _QUANTUM)
-        return (mean_negative * _GAUSSIAN_SCALE).astype(np.float32)
+            return np.zeros(self._sum.shape[1:], np.float32)
+        mean_negative, share_negative = self._sum / (self._n * _QUANTUM)
+        return negative_side_sigma(mean_negative, share_negative).astype(np.float32)
 
     def pixel_sigma(self, shape: tuple[int, int], floor: float) -> NDArray[np.float32]:
         """``max(σ, floor)`` of each pixel's tile over an image of `shape` (rows, columns).
@@ -95,3 +111,33 @@ class TileNoise:
                 cv2.resize(tiles, (width, height), interpolation=cv2.INTER_NEAREST)
             )
         return self._map
+
+
+def negative_side_sigma(
+    mean_negative: NDArray[np.float64], share_negative: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """Deviation ``σ`` of Gaussian noise of unknown mean from its negative side.
+
+    With ``p = P(F < 0) = Φ(−t)`` and ``t = μ/σ``: ``t = −Φ⁻¹(p)`` and
+    ``σ = E[max(−F, 0)] / (φ(t) − t Φ(−t))``.
+
+    Parameters
+    ----------
+    mean_negative : ndarray
+        Per tile, the mean of ``max(−F, 0)``, grey levels (≥ 0).
+    share_negative : ndarray
+        Per tile, the share of pixels with ``F < 0`` (at 0: half), in [0, 1].
+
+    Returns
+    -------
+    ndarray
+        ``σ`` per tile, grey levels: ``mean_negative · √(2π)`` where half the pixels
+        are negative; 0 where none is.
+    """
+    h = np.asarray(mean_negative, dtype=np.float64)
+    p = np.clip(np.asarray(share_negative, dtype=np.float64), 0.0, 1.0)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        t = -ndtri(p)
+        spread = np.exp(-0.5 * t * t) / _GAUSSIAN_SCALE - t * p
+        sigma = h / spread
+    return np.where((p > 0) & (h > 0) & np.isfinite(sigma), sigma, 0.0)

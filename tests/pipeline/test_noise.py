@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.noise import TileNoise, tile_grid
+from pipeline.noise import TileNoise, negative_side_sigma, tile_grid
 
 
 def test_a_known_sigma_is_recovered_per_tile() -> None:
@@ -29,6 +29,34 @@ def test_flashes_do_not_inflate_the_estimate() -> None:
         lit.update(flashed)
     np.testing.assert_allclose(lit.sigma(), quiet.sigma(), rtol=0.02)
     np.testing.assert_allclose(quiet.sigma(), 1.5, rtol=0.05)
+
+
+def test_an_offset_foreground_does_not_inflate_the_estimate() -> None:
+    # A sky darkening at dusk: the running background stays brighter than the frame,
+    # and the foreground's mean drifts below zero (half a σ and more in simulated dusk).
+    rng = np.random.default_rng(3)
+    offset = np.array([[0.0, -0.6, -1.5, 0.8]], np.float32)
+    noise = TileNoise((1, 4), window=30)
+    for _ in range(30):
+        frame = rng.normal(0, 1.2, (32, 128)).astype(np.float32)
+        noise.update(frame + np.repeat(offset, 32, axis=1))
+    np.testing.assert_allclose(noise.sigma(), 1.2, rtol=0.04)
+
+
+def test_negative_side_sigma_inverts_the_gaussian_negative_half() -> None:
+    from scipy.stats import norm
+
+    mu = np.array([-3.0, -1.0, 0.0, 0.5, 2.0])
+    sigma = np.array([1.0, 2.0, 1.5, 0.7, 1.0])
+    t = mu / sigma
+    share = norm.cdf(-t)
+    mean_negative = sigma * (norm.pdf(t) - t * norm.cdf(-t))
+    np.testing.assert_allclose(negative_side_sigma(mean_negative, share), sigma, rtol=1e-9)
+    # μ = 0: the half-normal relation; no negative pixel: no estimate.
+    np.testing.assert_allclose(
+        negative_side_sigma(np.array([1.0]), np.array([0.5])), [2.5066], rtol=1e-4
+    )
+    assert negative_side_sigma(np.array([0.0]), np.array([0.0]))[0] == 0.0
 
 
 def test_the_window_forgets_old_frames_exactly() -> None:
