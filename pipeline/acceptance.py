@@ -222,8 +222,9 @@ def assess(
     faint : Detections, optional
         The camera's faint peaks (`pipeline.tracking.TrackingResult.faint_peaks`):
         spots lit too faintly to be candidates. They join the light curves (so a
-        candidate's chain and lit frames include them) and the flicker duty; they get
-        no verdict.
+        candidate's chain and lit frames include them); they get no verdict, and
+        neither the flicker duty nor the one-frame rule counts them (grain and sway
+        light them around true flashes too).
 
     Returns
     -------
