@@ -312,8 +312,8 @@ def with_noise(flashes: FlashTruth, scene: Scene, config: SimulationConfig) -> F
     columns = {}
     for camera in (1, 2):
         frame, u, v, _ = flashes.in_camera(camera)
-        read = config.resolved_noise_sigma
-        noise = scene.noise_at(camera, frame, u, v, read, config.grain_sigma)
+        white = scene.noise_at(camera, frame, u, v, config.resolved_noise_sigma)  # read, shot
+        noise = np.hypot(white, config.grain_sigma)  # the grain is independent of both
         columns[f"noise{camera}"] = noise
         amp = flashes.camera_column("amp", camera)
         columns[f"snr{camera}"] = amp / np.maximum(noise, 1e-9)
@@ -324,7 +324,7 @@ def with_noise(flashes: FlashTruth, scene: Scene, config: SimulationConfig) -> F
             amp,
             flashes.camera_column("psf", camera),
             streak,
-            scene.noise_at(camera, frame, u, v, read),  # white: read and shot noise
+            white,
             config.grain_sigma,
             config.grain_px,
         )
