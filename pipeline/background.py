@@ -38,8 +38,11 @@ from pipeline.params import TrackingParams
 
 
 class BackgroundModel(Protocol):
-    def foreground(self, y: NDArray[np.uint8]) -> NDArray[np.float32] | None:
-        """``Y − B`` in grey levels (float32, signed), or None before any frame."""
+    def foreground(
+        self, y: NDArray[np.uint8], out: NDArray[np.float32] | None = None
+    ) -> NDArray[np.float32] | None:
+        """``Y − B`` in grey levels (float32, signed; into `out` when given), or None
+        before any frame."""
         ...
 
     def level(self) -> NDArray[np.float32]:
@@ -59,10 +62,12 @@ class Ewma:
         self.n = 0
         self._alpha = alpha
 
-    def foreground(self, y: NDArray[np.uint8]) -> NDArray[np.float32] | None:
+    def foreground(
+        self, y: NDArray[np.uint8], out: NDArray[np.float32] | None = None
+    ) -> NDArray[np.float32] | None:
         if self.n == 0:
             return None
-        return np.asarray(cv2.subtract(y, self.mean, dtype=cv2.CV_32F), np.float32)
+        return np.asarray(cv2.subtract(y, self.mean, dst=out, dtype=cv2.CV_32F), np.float32)
 
     def level(self) -> NDArray[np.float32]:
         return self.mean
@@ -81,10 +86,12 @@ class BoxMean:
         self._n = 0
         self._next = 0
 
-    def foreground(self, y: NDArray[np.uint8]) -> NDArray[np.float32] | None:
+    def foreground(
+        self, y: NDArray[np.uint8], out: NDArray[np.float32] | None = None
+    ) -> NDArray[np.float32] | None:
         if self._n == 0:
             return None
-        scaled = cv2.addWeighted(y, 1.0, self._sum, -1.0 / self._n, 0.0, dtype=cv2.CV_32F)
+        scaled = cv2.addWeighted(y, 1.0, self._sum, -1.0 / self._n, 0.0, dst=out, dtype=cv2.CV_32F)
         return np.asarray(scaled, np.float32)
 
     def level(self) -> NDArray[np.float32]:

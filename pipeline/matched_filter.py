@@ -38,16 +38,21 @@ def binning(width: int, requested: int | None = None) -> int:
     return b
 
 
-def bin_image(image: NDArray[np.uint8], bin_px: int) -> NDArray[np.uint8]:
-    """Mean of ``bin_px × bin_px`` bins (rounded to grey levels); the image itself for 1."""
+def bin_image(
+    image: NDArray[np.uint8], bin_px: int, out: NDArray[np.uint8] | None = None
+) -> NDArray[np.uint8]:
+    """Mean of ``bin_px × bin_px`` bins (rounded to grey levels), into `out` when given;
+    the image itself for 1."""
     if bin_px == 1:
         return image
     height, width = image.shape
     size = (width // bin_px, height // bin_px)
-    return np.asarray(cv2.resize(image, size, interpolation=cv2.INTER_AREA), np.uint8)
+    return np.asarray(cv2.resize(image, size, dst=out, interpolation=cv2.INTER_AREA), np.uint8)
 
 
-def matched_filter(foreground: NDArray[np.float32], sigma_px: float) -> NDArray[np.float32]:
+def matched_filter(
+    foreground: NDArray[np.float32], sigma_px: float, out: NDArray[np.float32] | None = None
+) -> NDArray[np.float32]:
     """Gaussian-filter a foreground image, wrapping its columns at the 360° seam.
 
     Parameters
@@ -56,6 +61,9 @@ def matched_filter(foreground: NDArray[np.float32], sigma_px: float) -> NDArray[
         Frame minus background, grey levels (signed).
     sigma_px : float
         Gaussian ``σ`` in pixels; 0 disables the filter.
+    out : ndarray of float32, shape (H, W), optional
+        Where to write the result (not `foreground` itself): a frame loop that reuses
+        its buffers spares the kernel a fresh 4-bytes-a-pixel allocation per frame.
 
     Returns
     -------
@@ -68,14 +76,21 @@ def matched_filter(foreground: NDArray[np.float32], sigma_px: float) -> NDArray[
     kernel = (2 * pad + 1, 2 * pad + 1)  # truncated at 3σ: the pad covers it exactly
     # The whole image with replicated borders, then its first and last columns again
     # from a narrow strip that joins the two edges (cheaper than padding the image).
-    out = cv2.GaussianBlur(foreground, kernel, sigma_px, borderType=cv2.BORDER_REPLICATE)
     if foreground.shape[1] >= 4 * pad:
+        filtered = np.asarray(
+            cv2.GaussianBlur(
+                foreground, kernel, sigma_px, dst=out, borderType=cv2.BORDER_REPLICATE
+            ),
+            np.float32,
+        )
         strip = np.hstack([foreground[:, -2 * pad :], foreground[:, : 2 * pad]])
         joined = cv2.GaussianBlur(strip, kernel, sigma_px, borderType=cv2.BORDER_REPLICATE)
-        out[:, :pad] = joined[:, 2 * pad : 3 * pad]
-        out[:, -pad:] = joined[:, pad : 2 * pad]
-    else:
-        wrapped = cv2.copyMakeBorder(foreground, 0, 0, pad, pad, cv2.BORDER_WRAP)
-        out = cv2.GaussianBlur(wrapped, kernel, sigma_px, borderType=cv2.BORDER_REPLICATE)
-        out = out[:, pad:-pad]
-    return np.ascontiguousarray(out, dtype=np.float32)
+        filtered[:, :pad] = joined[:, 2 * pad : 3 * pad]
+        filtered[:, -pad:] = joined[:, pad : 2 * pad]
+        return filtered
+    wrapped = cv2.copyMakeBorder(foreground, 0, 0, pad, pad, cv2.BORDER_WRAP)
+    blurred = cv2.GaussianBlur(wrapped, kernel, sigma_px, borderType=cv2.BORDER_REPLICATE)
+    if out is None:
+        return np.ascontiguousarray(blurred[:, pad:-pad], dtype=np.float32)
+    out[:] = blurred[:, pad:-pad]
+    return out

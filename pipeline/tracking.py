@@ -280,6 +280,13 @@ class _FrameDetector:
         )
         self._last = (-1, np.zeros(self._binned, np.uint8))  # index and binned luminance
         self._mask = np.empty(self._binned, np.bool_)
+        # The foreground and its filtered image, reused by every lane and frame: a fresh
+        # pair per frame costs the kernel ~2,000 page faults a frame at 4K.
+        self._foreground = np.empty(self._binned, np.float32)
+        self._filtered = np.empty(self._binned, np.float32)
+        # Binned luminance of this frame and the last, in turn (`recurrence` reads the
+        # last frame processed after `process` returns).
+        self._small = np.empty((2, *self._binned), np.uint8)
         self._level: tuple[NDArray[np.float32], NDArray[np.float32]] | None = None
         self._dropped_by_area = 0
         self._dropped_over_cap = 0
@@ -289,12 +296,12 @@ class _FrameDetector:
     def process(self, frame: Frame) -> tuple[Blobs, FaintPeaks] | None:
         """Blobs and faint peaks of `frame`, or None for a warm-up frame before the range."""
         image = _blur(frame.y, self._params.blur_px) if self._params.blur_px > 0 else frame.y
-        small = bin_image(image, self._bin)
+        small = bin_image(image, self._bin, self._small[frame.index % 2])
         found: tuple[Blobs, FaintPeaks] | None = None
         for lane, tracks in self._lanes.at(frame.index):
-            foreground = lane.background.foreground(small)
+            foreground = lane.background.foreground(small, self._foreground)
             if foreground is not None:
-                filtered = matched_filter(foreground, self._params.matched_sigma_px)
+                filtered = matched_filter(foreground, self._params.matched_sigma_px, self._filtered)
                 if frame.index % SAMPLE_EVERY == 0 or lane.noise.frames == 0:
                     lane.noise.update(filtered)
                 if tracks and frame.index >= self._start:
