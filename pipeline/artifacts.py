@@ -38,6 +38,9 @@ CHUNK_METRICS_JSON = "work/tracking/cam{camera}/{start:08d}-{stop:08d}.json"
 CANDIDATES_NPZ = "work/candidates_cam{camera}.npz"
 #: The acceptance evidence on each candidate of a camera (`pipeline.acceptance`).
 EVIDENCE_NPZ = "work/evidence_cam{camera}.npz"
+#: The final decision on each candidate of a camera: the evidence model's flash
+#: probability (NaN when the rules decided), accepted, matched in the other camera.
+ACCEPTANCE_NPZ = "work/acceptance_cam{camera}.npz"
 #: Accepted detections of a camera (CONTRACT file).
 FLASHES_CSV = "flashes_cam{camera}.csv"
 

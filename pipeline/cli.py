@@ -38,9 +38,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _registrars() -> list:
-    from pipeline import classifier_cli, commands, detection_eval_cli
+    from pipeline import acceptance_cli, classifier_cli, commands, detection_eval_cli
 
-    registrars = [commands.register, classifier_cli.register, detection_eval_cli.register]
+    registrars = [
+        commands.register,
+        classifier_cli.register,
+        detection_eval_cli.register,
+        acceptance_cli.register,
+    ]
     for ep in entry_points(group=ENTRY_POINT_GROUP):
         try:
             registrars.append(ep.load())

@@ -39,6 +39,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 from pipeline.artifacts import (
+    ACCEPTANCE_NPZ,
     CALIBRATION_JSON,
     CALIBRATION_PAIRS_NPZ,
     CAMERAS,
@@ -266,8 +267,8 @@ STAGES: tuple[Stage, ...] = (
         "pipeline.stages:accept",
         after=("pose",),
         reads=(PROBE_JSON, CALIBRATION_JSON, CANDIDATES_NPZ, EVIDENCE_NPZ),
-        writes=(FLASHES_CSV,),
-        description="accept confident flashes and the doubtful ones the other camera confirms",
+        writes=(FLASHES_CSV, ACCEPTANCE_NPZ),
+        description="accept the flashes from all the evidence, the other camera's included",
     ),
     Stage(
         "triangulate",

@@ -564,6 +564,21 @@ class AcceptanceParams(BaseModel):
         False,
         description="Confirm only light-curve pairs that hold at least one confident flash.",
     )
+    evidence_model: str | None = Field(
+        "default",
+        description="The final decision once the delay and the pose are known: 'default' "
+        "(the shipped evidence model, pipeline/models/evidence_trees.json) or a model "
+        "file's path weighs every kind of evidence at once (pipeline.evidence_model); "
+        "None: the rules (confident flashes plus the doubtful ones stereo confirms). The "
+        "rules decide anyway when the patch classifier is not the model's.",
+    )
+    evidence_threshold: float | None = Field(
+        None,
+        ge=0,
+        le=1,
+        description="Flash probability from which the evidence model accepts a candidate; "
+        "None: the model's own threshold.",
+    )
 
 
 class ClassifierParams(BaseModel):

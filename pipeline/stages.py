@@ -20,6 +20,7 @@ import numpy as np
 
 from pipeline.acceptance import Evidence, assess, confirm, refined
 from pipeline.artifacts import (
+    ACCEPTANCE_NPZ,
     CALIBRATION_JSON,
     CALIBRATION_PAIRS_NPZ,
     CAMERAS,
@@ -39,6 +40,8 @@ from pipeline.artifacts import (
 from pipeline.classify import FlashClassifier
 from pipeline.clock import NightClock, night_clock
 from pipeline.detections import Detections
+from pipeline.evidence_features import stereo_matches
+from pipeline.evidence_model import acceptance_counts, evidence_model, weigh
 from pipeline.graph import StageContext, StageResult, earlier_units, read_record
 from pipeline.jsonio import read_json, write_json
 from pipeline.params import AcceptanceParams, ClassifierParams, validate_separation
@@ -345,44 +348,69 @@ def pose(ctx: StageContext) -> StageResult:
 
 
 def accept(ctx: StageContext) -> StageResult:
-    """Accept the confident candidates and the doubtful ones the other camera confirms.
+    """Decide which candidates are flashes, once the delay and the pose are known.
 
-    Writes ``flashes_cam1.csv`` and ``flashes_cam2.csv``; the metrics count, per camera,
-    the candidates accepted and rejected by each kind of evidence.
+    The evidence model (`pipeline.evidence_model`) weighs every kind of evidence on
+    each candidate, the other camera's included; without one (or with another patch
+    classifier than its own) the rules accept the confident candidates and the doubtful
+    ones the other camera confirms (`pipeline.acceptance.confirm`). Writes
+    ``flashes_cam1.csv`` and ``flashes_cam2.csv`` and each candidate's decision
+    (``acceptance_cam*.npz``); the metrics count, per camera, the candidates accepted
+    and rejected by each kind of evidence.
     """
     validate_separation(ctx.separation_m)
     calibration = read_calibration(ctx.path(CALIBRATION_JSON))
     candidates, evidence = _candidates(ctx)
-    outcome = confirm(
-        candidates,
-        evidence,
-        calibration.delay_frames,
-        calibration.pose,
-        calibration.width,
-        ctx.separation_m,
-        ctx.params.acceptance,
-        ctx.params.triangulation,
+    params = ctx.params.acceptance
+    model, why_rules = evidence_model(params, ctx.params.classifier)
+    gates = ctx.params.triangulation.model_copy(
+        update={"max_gap_deg": min(ctx.params.triangulation.max_gap_deg, params.stereo_max_gap_deg)}
     )
-    metrics: dict[str, Any] = {}
-    accepted = (outcome.accepted1, outcome.accepted2)
-    stereo = (outcome.stereo1, outcome.stereo2)
-    for camera, det, ev, keep, confirmed, path in zip(
-        CAMERAS, candidates, evidence, accepted, stereo, ctx.paths(FLASHES_CSV), strict=True
+    if model is not None:
+        matches = stereo_matches(
+            candidates,
+            calibration.delay_frames,
+            calibration.pose,
+            calibration.width,
+            ctx.separation_m,
+            gates,
+        )
+        weighed = weigh(
+            model,
+            candidates,
+            evidence,
+            matches,
+            calibration.width,
+            calibration.fps,
+            ctx.params.flicker,
+            params.evidence_threshold,
+        )
+        accepted = (weighed.accepted1, weighed.accepted2)
+        matched = (weighed.matched1, weighed.matched2)
+        probability = (weighed.probability1, weighed.probability2)
+    else:
+        outcome = confirm(
+            candidates,
+            evidence,
+            calibration.delay_frames,
+            calibration.pose,
+            calibration.width,
+            ctx.separation_m,
+            params,
+            ctx.params.triangulation,
+        )
+        accepted = (outcome.accepted1, outcome.accepted2)
+        matched = (outcome.stereo1, outcome.stereo2)
+        probability = (np.full(len(candidates[0]), np.nan), np.full(len(candidates[1]), np.nan))
+    metrics: dict[str, Any] = {"decided_by": "evidence model" if model else "rules"}
+    outputs = zip(ctx.paths(FLASHES_CSV), ctx.paths(ACCEPTANCE_NPZ), strict=True)
+    for camera, det, ev, keep, stereo, p, (csv, npz) in zip(
+        CAMERAS, candidates, evidence, accepted, matched, probability, outputs, strict=True
     ):
-        det.select(keep).to_csv(path)
-        verdicts = ev.counts()
-        metrics[f"cam{camera}"] = {
-            "candidates": len(det),
-            "accepted": int(keep.sum()),
-            "accepted_confident": verdicts["confident"],
-            "accepted_stereo": int(confirmed.sum()),
-            "rejected_flicker": verdicts["flicker"],
-            "rejected_light_curve": verdicts["steady"],
-            "rejected_classifier": verdicts["classifier"],
-            "rejected_recurrent": verdicts["recurrent"],
-            "rejected_unconfirmed": verdicts["doubtful"] - int(confirmed.sum()),
-        }
-    return StageResult(metrics=metrics)
+        det.select(keep).to_csv(csv)
+        np.savez_compressed(npz, probability=p, accepted=keep, matched=stereo)
+        metrics[f"cam{camera}"] = acceptance_counts(ev.verdict, keep, stereo)
+    return StageResult(metrics=metrics, warnings=[why_rules] if why_rules else [])
 
 
 def triangulate(ctx: StageContext) -> StageResult:

@@ -288,7 +288,9 @@ def test_acceptance_beats_background_subtraction_in_wind(simulated, tmp_path) ->
         assert _f1(everything, recording.truth, camera) < 0.5
     summary = json.loads((accepted / artifacts.SUMMARY_JSON).read_text())
     counts = summary["acceptance"]["cam1"]
-    assert counts["accepted"] == counts["accepted_confident"] + counts["accepted_stereo"]
+    assert summary["acceptance"]["decided_by"] == "evidence model"
+    kinds = ("accepted_confident", "accepted_stereo", "accepted_single_camera")
+    assert counts["accepted"] == sum(counts[k] for k in kinds)
     rejected = [counts[k] for k in counts if k.startswith("rejected_")]
     assert counts["candidates"] == counts["accepted"] + sum(rejected)
 

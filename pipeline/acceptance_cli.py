@@ -1,0 +1,71 @@
+"""``firefly3d train-acceptance``: fit the evidence model on simulated nights.
+
+The nights are the runs of ``firefly3d eval-detection --json`` files (each run names
+its recording, with ground truth, and its result folder), so the same cached
+simulations and pipeline runs serve both the measurement and the training.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``train-acceptance``."""
+    parser = subparsers.add_parser(
+        "train-acceptance",
+        help="fit the evidence model (final acceptance) on simulated nights with ground truth",
+        description="Fit the evidence model (pipeline.evidence_model) on the candidates of "
+        "the runs listed in eval-detection JSON files, choose its threshold on "
+        "out-of-fold predictions (folds of whole seeds) and write the model file. Needs "
+        "the train extra (scikit-learn).",
+    )
+    parser.add_argument(
+        "--runs", type=Path, nargs="+", required=True, metavar="JSON", help="eval-detection --json"
+    )
+    parser.add_argument("--out", type=Path, required=True, metavar="FILE", help="model JSON")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--classifier",
+        default=None,
+        metavar="NAME",
+        help="file name of the patch classifier the runs used (default: the shipped one)",
+    )
+    parser.set_defaults(func=_train_acceptance)
+
+
+def _train_acceptance(args: argparse.Namespace) -> int:
+    from pipeline.classify import DEFAULT_MODEL_NAME
+    from pipeline.detection_eval_cli import load_truth_for_eval
+    from pipeline.training.acceptance import night_rows, run_params, train
+
+    nights = []
+    for document in args.runs:
+        for run in json.loads(document.read_text(encoding="utf-8"))["runs"]:
+            if run.get("error"):
+                print(f"skipping {run['results']}: {run['error']}", file=sys.stderr)
+                continue
+            results = Path(run["results"])
+            truth = load_truth_for_eval(Path(run["recording"]))
+            nights.append(night_rows(results, truth, run_params(results)))
+            print(f"{nights[-1].name}: {len(nights[-1].is_flash)} candidates", file=sys.stderr)
+    if len({n.seed for n in nights}) < 2:
+        print("error: give nights of at least two seeds (folds are whole seeds)", file=sys.stderr)
+        return 2
+    model, figures = train(nights, args.classifier or DEFAULT_MODEL_NAME, args.seed)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    model.to_json(args.out)
+    print(f"threshold {model.threshold:.3f} (largest out-of-fold F1); out of fold at it:")
+    print(f"{'scenario':14s} {'accepted':>9s} {'true':>7s} {'precision':>9s} {'recall':>7s}")
+    for name, f in figures.items():
+        precision, recall = (
+            "-" if math.isnan(v) else f"{v:.3f}"
+            for v in (f["precision"], f["recall_of_candidates"])
+        )
+        print(f"{name:14s} {f['accepted']:9d} {f['true']:7d} {precision:>9s} {recall:>7s}")
+    print(f"wrote {args.out}")
+    return 0

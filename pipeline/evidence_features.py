@@ -1,0 +1,262 @@
+"""The evidence on each flash candidate as numbers: what the evidence model weighs.
+
+Every candidate of a camera gets one row of `FEATURES`, from its own camera and, once
+the delay and the pose are known, from the other one:
+
+* its own patch and spot: SNR, the classifier's probability, its peak foreground;
+* its light curve (`pipeline.acceptance.spot_chains`): how long the spot stays lit
+  (faint peaks counted), how long it is a candidate, how many candidates the chain
+  holds, the chain's best SNR and probability;
+* the artifact tests: recurrence (`pipeline.recurrence`), flicker duty
+  (`pipeline.flicker`) and the step-1 verdict of the rules (`Verdict`, one-hot);
+* stereo: whether the candidate is matched with a candidate of the other camera in the
+  synchronised frame within the triangulation gates (`pipeline.triangulate`), that
+  candidate's SNR, probability, light curve and verdict, the ray gap as an angle, and
+  how long the two light curves are matched with each other.
+
+Durations are in seconds, not frames, and angles in degrees, not pixels, so that a
+model learnt at one frame rate and resolution reads the same evidence at another.
+Features that would only describe the simulated scenes a model is trained on (the
+elevation of a candidate, its range) are left out on purpose. Missing values (no match,
+no recurrence measured) are NaN: the trees route them (`pipeline.trees`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from pipeline.acceptance import Evidence, Verdict, steady_frames
+from pipeline.detections import Detections
+from pipeline.flicker import flicker_duty
+from pipeline.geometry import Pose
+from pipeline.params import FlickerParams, TriangulationParams
+from pipeline.triangulate import triangulate
+
+_VERDICTS = tuple(f"verdict_{v.name.lower()}" for v in Verdict)
+
+_OWN: tuple[str, ...] = (
+    "snr_log",
+    "probability",
+    "peak_log",
+    "lit_s",
+    "candidate_lit_s",
+    "chain_candidates_s",
+    "chain_peak_snr_log",
+    "chain_peak_probability",
+    "recurrence",
+    "flicker_duty",
+    *_VERDICTS,
+)
+_STEREO: tuple[str, ...] = (
+    "stereo_matched",
+    "other_snr_log",
+    "other_probability",
+    "other_lit_s",
+    "other_plausible",
+    "other_confident",
+    "gap_deg",
+    "pair_s",
+    "pair_peak_snr_log",
+)
+#: Column names of a feature row, in order.
+FEATURES: tuple[str, ...] = _OWN + _STEREO
+
+
+@dataclass(frozen=True)
+class StereoMatches:
+    """One-to-one matches between the two cameras' candidates.
+
+    Attributes
+    ----------
+    index1, index2 : ndarray of intp
+        Matched rows of camera 1's and camera 2's candidates.
+    gap_deg : ndarray of float64
+        Ray gap of each match as an angle at camera 1, degrees.
+    """
+
+    index1: NDArray[np.intp]
+    index2: NDArray[np.intp]
+    gap_deg: NDArray[np.float64]
+
+
+def stereo_matches(
+    candidates: tuple[Detections, Detections],
+    delay_frames: int,
+    pose: Pose,
+    width: int,
+    separation_m: float,
+    gates: TriangulationParams,
+) -> StereoMatches:
+    """Match every candidate of one camera with the other's, frame by frame.
+
+    Parameters
+    ----------
+    candidates : (Detections, Detections)
+        All candidates of camera 1 and camera 2.
+    delay_frames : int
+        Camera-1 frame ``k`` is camera-2 frame ``k + delay_frames``.
+    pose : Pose
+        Camera 2 relative to camera 1.
+    width : int
+        Frame width in pixels.
+    separation_m : float
+        Camera separation, metres.
+    gates : TriangulationParams
+        The matching gates (`pipeline.triangulate.triangulate`).
+    """
+    points = triangulate(*candidates, delay_frames, pose, width, separation_m, gates)
+    gap_deg = np.degrees(points.gap_m / np.maximum(points.range_m, 1e-9))
+    return StereoMatches(
+        points.index1.astype(np.intp), points.index2.astype(np.intp), gap_deg.astype(np.float64)
+    )
+
+
+def candidate_features(
+    candidates: tuple[Detections, Detections],
+    evidence: tuple[Evidence, Evidence],
+    matches: StereoMatches,
+    width: int,
+    fps: float,
+    flicker: FlickerParams,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The `FEATURES` of every candidate of camera 1 and of camera 2.
+
+    Parameters
+    ----------
+    candidates, evidence : pairs (camera 1, camera 2)
+        Every candidate of each camera and its step-1 evidence (`pipeline.acceptance`).
+    matches : StereoMatches
+        Stereo matches between the two cameras' candidates (`stereo_matches`).
+    width : int
+        Frame width in pixels.
+    fps : float
+        Frames per second.
+    flicker : FlickerParams
+        Neighbourhood and window of the flicker duty.
+
+    Returns
+    -------
+    (ndarray, ndarray)
+        Shapes (N1, len(FEATURES)) and (N2, len(FEATURES)).
+    """
+    pair = _pair_statistics(candidates, evidence, matches)
+    rows = []
+    for camera in (0, 1):
+        own, other = (
+            (matches.index1, matches.index2) if camera == 0 else (matches.index2, matches.index1)
+        )
+        rows.append(
+            np.column_stack(
+                [
+                    _own_features(candidates[camera], evidence[camera], width, fps, flicker),
+                    _stereo_features(
+                        len(candidates[camera]),
+                        own,
+                        candidates[1 - camera].select(other),
+                        evidence[1 - camera],
+                        other,
+                        matches.gap_deg,
+                        pair,
+                        fps,
+                    ),
+                ]
+            )
+        )
+    return rows[0], rows[1]
+
+
+def _own_features(
+    det: Detections, ev: Evidence, width: int, fps: float, flicker: FlickerParams
+) -> NDArray[np.float64]:
+    n = len(det)
+    if n == 0:
+        return np.zeros((0, len(_OWN)))
+    snr = det.snr.astype(np.float64)
+    probability = det.flash_probability.astype(np.float64)
+    candidate_lit = steady_frames(det.frame, ev.chain)
+    chain_size = np.bincount(ev.chain)
+    peak_snr = np.full(len(chain_size), -np.inf)
+    np.fmax.at(peak_snr, ev.chain, snr)
+    peak_probability = np.full(len(chain_size), -np.inf)
+    np.fmax.at(peak_probability, ev.chain, probability)
+    duty = flicker_duty(det.frame, det.x, det.y, width, fps, flicker.radius_deg, flicker.window_s)
+    verdicts = np.eye(len(Verdict))[ev.verdict]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.column_stack(
+            [
+                np.log(snr),
+                probability,
+                np.log(np.maximum(det.peak.astype(np.float64), 0.1)),
+                ev.lit_frames / fps,
+                candidate_lit / fps,
+                chain_size[ev.chain] / fps,
+                np.log(peak_snr[ev.chain]),
+                peak_probability[ev.chain],
+                det.recurrence.astype(np.float64),
+                duty,
+                verdicts,
+            ]
+        )
+
+
+@dataclass(frozen=True)
+class _PairStatistics:
+    """Per stereo match: how long its two light curves are matched, and their best SNR."""
+
+    length: NDArray[np.int64]
+    peak_snr: NDArray[np.float64]
+
+
+def _pair_statistics(
+    candidates: tuple[Detections, Detections],
+    evidence: tuple[Evidence, Evidence],
+    matches: StereoMatches,
+) -> _PairStatistics:
+    if len(matches.index1) == 0:
+        return _PairStatistics(np.zeros(0, np.int64), np.zeros(0))
+    curves = np.column_stack([evidence[0].chain[matches.index1], evidence[1].chain[matches.index2]])
+    group = np.unique(curves, axis=0, return_inverse=True)[1].reshape(-1)
+    weaker = np.fmin(
+        candidates[0].snr[matches.index1].astype(np.float64),
+        candidates[1].snr[matches.index2].astype(np.float64),
+    )
+    peak = np.full(group.max() + 1, -np.inf)
+    np.fmax.at(peak, group, weaker)
+    return _PairStatistics(np.bincount(group)[group], peak[group])
+
+
+def _stereo_features(
+    n: int,
+    own: NDArray[np.intp],
+    partner: Detections,
+    partner_evidence: Evidence,
+    partner_rows: NDArray[np.intp],
+    gap_deg: NDArray[np.float64],
+    pair: _PairStatistics,
+    fps: float,
+) -> NDArray[np.float64]:
+    """Stereo columns of one camera's candidates; NaN where a candidate is unmatched
+    (``stereo_matched`` 0)."""
+    out = np.full((n, len(_STEREO)), np.nan)
+    out[:, 0] = 0.0
+    if len(own) == 0:
+        return out
+    verdict = partner_evidence.verdict[partner_rows]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out[own] = np.column_stack(
+            [
+                np.ones(len(own)),
+                np.log(partner.snr.astype(np.float64)),
+                partner.flash_probability.astype(np.float64),
+                partner_evidence.lit_frames[partner_rows] / fps,
+                verdict <= Verdict.DOUBTFUL,
+                verdict == Verdict.CONFIDENT,
+                gap_deg,
+                pair.length / fps,
+                np.log(pair.peak_snr),
+            ]
+        )
+    return out

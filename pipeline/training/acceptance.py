@@ -1,0 +1,206 @@
+"""Training the evidence model (`pipeline.evidence_model`) on simulated nights.
+
+A night is a result folder of ``firefly3d process`` (made by ``eval-detection``) with
+the simulated recording's ground truth. Every candidate of both cameras becomes a row
+of `pipeline.evidence_features.FEATURES`, computed exactly as the accept stage computes
+it (the same calibration, the same gates), and is labelled a flash when a visible true
+flash of its frame lies within `pipeline.evaluate.DETECTION_TOLERANCE_PX` (the 2D
+precision's definition of a true detection).
+
+Gradient-boosted trees (scikit-learn's ``HistGradientBoostingClassifier``, a training
+dependency only) are fitted; the threshold is the one of largest F1 over out-of-fold
+predictions, folds being whole seeds (the nights of one seed share their fireflies).
+The trees are exported to the JSON that `pipeline.trees` evaluates.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from pipeline.acceptance import Evidence
+from pipeline.artifacts import CALIBRATION_JSON, EVIDENCE_NPZ, candidates_name
+from pipeline.detections import Detections
+from pipeline.evaluate import match_detections
+from pipeline.evidence_features import candidate_features, stereo_matches
+from pipeline.evidence_model import EvidenceModel
+from pipeline.params import ProcessParams
+from pipeline.results import read_calibration
+from pipeline.simulate import GroundTruth
+from pipeline.training.splits import grouped_folds
+from pipeline.trees import TreeEnsemble
+
+#: Boosting settings (chosen on out-of-fold figures of the tuning nights,
+#: docs/detection.md); depth 6 also bounds the evaluation's steps (`pipeline.trees`).
+BOOSTING: dict[str, Any] = {
+    "max_iter": 250,
+    "learning_rate": 0.05,
+    "max_leaf_nodes": 15,
+    "max_depth": 6,
+    "min_samples_leaf": 40,
+    "l2_regularization": 1.0,
+    "early_stopping": False,
+}
+
+
+@dataclass(frozen=True)
+class Night:
+    """The labelled feature rows of one simulated night (both cameras).
+
+    Attributes
+    ----------
+    name : str
+        ``<scenario> s<seed> <width>px <fps>fps``.
+    scenario : str
+    seed : int
+    rows : ndarray, shape (N, len(FEATURES))
+    is_flash : ndarray of bool, shape (N,)
+    """
+
+    name: str
+    scenario: str
+    seed: int
+    rows: NDArray[np.float64]
+    is_flash: NDArray[np.bool_]
+
+
+def night_rows(results: Path, truth: GroundTruth, params: ProcessParams) -> Night:
+    """Feature rows and labels of every candidate of a result folder."""
+    calibration = read_calibration(results / CALIBRATION_JSON)
+    candidates = tuple(Detections.from_npz(results / candidates_name(c)) for c in (1, 2))
+    evidence = tuple(Evidence.load(results / EVIDENCE_NPZ.format(camera=c)) for c in (1, 2))
+    acceptance, triangulation = params.acceptance, params.triangulation
+    gates = triangulation.model_copy(
+        update={"max_gap_deg": min(triangulation.max_gap_deg, acceptance.stereo_max_gap_deg)}
+    )
+    pair = (candidates[0], candidates[1])
+    matches = stereo_matches(
+        pair,
+        calibration.delay_frames,
+        calibration.pose,
+        calibration.width,
+        truth.separation_m,
+        gates,
+    )
+    rows = candidate_features(
+        pair,
+        (evidence[0], evidence[1]),
+        matches,
+        calibration.width,
+        calibration.fps,
+        params.flicker,
+    )
+    labels = [match_detections(candidates[c], truth, c + 1).true_detection for c in (0, 1)]
+    name = f"{truth.scenario} s{truth.seed} {truth.width}px {truth.fps:g}fps"
+    return Night(name, truth.scenario, truth.seed, np.vstack(rows), np.concatenate(labels))
+
+
+def run_params(results: Path) -> ProcessParams:
+    """The parameters a result folder was made with (``eval-params.json``), else the
+    defaults."""
+    stamp = results / "eval-params.json"
+    if stamp.is_file():
+        return ProcessParams.model_validate(json.loads(stamp.read_text(encoding="utf-8")))
+    return ProcessParams()
+
+
+def to_ensemble(model: Any) -> TreeEnsemble:
+    """A fitted binary ``HistGradientBoostingClassifier`` as a `TreeEnsemble`."""
+    nodes = [predictor.nodes for (predictor,) in model._predictors]
+    offsets = np.cumsum([0, *(len(n) for n in nodes[:-1])])
+    every = np.concatenate(nodes)
+    shift = np.repeat(offsets, [len(n) for n in nodes])
+    leaf = every["is_leaf"].astype(bool)
+    index = np.arange(len(every))
+    if np.any(every["is_categorical"][~leaf]):
+        raise ValueError("categorical splits are not supported")
+    return TreeEnsemble(
+        feature=np.where(leaf, -1, every["feature_idx"]).astype(np.intp),
+        threshold=np.where(leaf, 0.0, every["num_threshold"]),
+        missing_left=every["missing_go_to_left"].astype(bool),
+        left=np.where(leaf, index, every["left"].astype(np.intp) + shift),
+        right=np.where(leaf, index, every["right"].astype(np.intp) + shift),
+        value=np.where(leaf, every["value"], 0.0),
+        roots=offsets.astype(np.intp),
+        baseline=float(np.ravel(model._baseline_prediction)[0]),
+        n_features=int(model.n_features_in_),
+    )
+
+
+def fit_trees(rows: NDArray[np.float64], is_flash: NDArray[np.bool_], seed: int) -> TreeEnsemble:
+    from sklearn.ensemble import HistGradientBoostingClassifier
+
+    model = HistGradientBoostingClassifier(**BOOSTING, random_state=seed)
+    return to_ensemble(model.fit(rows, is_flash))
+
+
+def best_f1_threshold(probability: NDArray[np.float64], is_flash: NDArray[np.bool_]) -> float:
+    """The probability cut of largest F1 (ties: the higher cut)."""
+    order = np.argsort(-probability, kind="stable")
+    true = np.cumsum(is_flash[order])
+    f1 = 2 * true / (np.arange(1, len(order) + 1) + is_flash.sum())
+    # Only cut between distinct probabilities.
+    distinct = np.r_[probability[order][1:] < probability[order][:-1], True]
+    best = np.flatnonzero(distinct)[np.argmax(f1[distinct])]
+    return float(probability[order][best])
+
+
+def operating_point(
+    probability: NDArray[np.float64], is_flash: NDArray[np.bool_], threshold: float
+) -> dict[str, float | int]:
+    accepted = probability >= threshold
+    true = int(np.count_nonzero(accepted & is_flash))
+    n = int(np.count_nonzero(accepted))
+    flashes = int(np.count_nonzero(is_flash))
+    return {
+        "accepted": n,
+        "true": true,
+        "precision": true / n if n else float("nan"),
+        "recall_of_candidates": true / flashes if flashes else float("nan"),
+    }
+
+
+def train(
+    nights: Sequence[Night], classifier: str, seed: int = 0, folds: int = 4
+) -> tuple[EvidenceModel, dict[str, Any]]:
+    """Fit the evidence model on `nights`; its threshold and the figures of its card
+    come from out-of-fold predictions (folds of whole seeds).
+
+    Returns
+    -------
+    (EvidenceModel, dict)
+        The model, and the out-of-fold figures per scenario at its threshold (also in
+        the model's card).
+    """
+    rows = np.vstack([n.rows for n in nights])
+    is_flash = np.concatenate([n.is_flash for n in nights])
+    seeds = np.concatenate([np.full(len(n.is_flash), n.seed) for n in nights])
+    scenario = np.concatenate([np.full(len(n.is_flash), n.scenario) for n in nights])
+    oof = np.full(len(rows), np.nan)
+    for train_rows, test_rows in grouped_folds(seeds, is_flash, min(folds, len(set(seeds))), seed):
+        oof[test_rows] = fit_trees(rows[train_rows], is_flash[train_rows], seed).predict_proba(
+            rows[test_rows]
+        )
+    threshold = best_f1_threshold(oof, is_flash)
+    figures = {
+        name: operating_point(oof[scenario == name], is_flash[scenario == name], threshold)
+        for name in sorted(set(scenario))
+    }
+    card = {
+        "name": "evidence_trees",
+        "kind": "gradient-boosted trees over pipeline.evidence_features.FEATURES",
+        "boosting": BOOSTING,
+        "seed": seed,
+        "trained_on": [n.name for n in nights],
+        "n_rows": len(rows),
+        "n_flashes": int(is_flash.sum()),
+        "out_of_fold_at_threshold": figures,
+    }
+    model = EvidenceModel(fit_trees(rows, is_flash, seed), threshold, classifier, card)
+    return model, figures

@@ -1,0 +1,95 @@
+"""The evidence on each candidate as numbers (pipeline.evidence_features)."""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from pipeline.acceptance import Evidence, Verdict, spot_chains, steady_frames
+from pipeline.detections import Detections
+from pipeline.evidence_features import FEATURES, candidate_features, stereo_matches
+from pipeline.geometry import Pose, bearing_to_pixel
+from pipeline.params import FlickerParams, TriangulationParams
+
+WIDTH, SEPARATION = 640, 1.5
+POSE = Pose(np.eye(3), [1.0, 0.0, 0.0])
+GATES = TriangulationParams(max_gap_deg=1.0)
+
+
+def _seen(points: NDArray[np.float64], camera: int) -> tuple[NDArray, NDArray]:
+    local = points if camera == 1 else POSE.world_to_camera2(points, SEPARATION)
+    return bearing_to_pixel(local, WIDTH)
+
+
+def _camera(frames, points, snr, probability, camera: int) -> tuple[Detections, Evidence]:
+    x, y = _seen(np.asarray(points, float), camera)
+    det = Detections.from_columns(
+        frames, x, y, snr=snr, flash_probability=probability, peak=np.full(len(x), 40.0)
+    )
+    chain = spot_chains(det.frame, det.x, det.y, WIDTH, 1.0)
+    verdict = np.where(np.asarray(snr) >= 8, Verdict.CONFIDENT, Verdict.DOUBTFUL).astype(np.int8)
+    return det, Evidence(verdict, steady_frames(det.frame, chain), chain)
+
+
+def _scene(frames: int = 4):
+    """A firefly lit `frames` frames seen by both cameras (faint), and a noise spot in
+    camera 1."""
+    track = [[4.0 + 0.08 * i / frames, 3.0, 1.0] for i in range(frames)]
+    snr1 = np.resize([6.0, 7.0, 6.5, 5.5], frames)
+    snr2 = np.resize([5.5, 6.5, 9.0, 5.0], frames)
+    probability2 = np.resize([0.5, 0.6, 0.9, 0.5], frames)
+    noise = [[-2.0, -5.0, 0.5]]
+    det1, ev1 = _camera(
+        [*range(frames), 50], [*track, *noise], [*snr1, 4.5], [0.6] * frames + [0.2], 1
+    )
+    det2, ev2 = _camera(np.arange(frames), track, snr2, probability2, 2)
+    return (det1, det2), (ev1, ev2)
+
+
+def _features(candidates, evidence, fps: float):
+    matches = stereo_matches(candidates, 0, POSE, WIDTH, SEPARATION, GATES)
+    return candidate_features(candidates, evidence, matches, WIDTH, fps, FlickerParams())
+
+
+def _col(rows: NDArray, name: str) -> NDArray:
+    return rows[:, FEATURES.index(name)]
+
+
+def test_a_flash_seen_by_both_cameras_carries_the_other_cameras_evidence() -> None:
+    candidates, evidence = _scene()
+    rows1, rows2 = _features(candidates, evidence, fps=30.0)
+    assert rows1.shape == (5, len(FEATURES)) and rows2.shape == (4, len(FEATURES))
+    assert _col(rows1, "stereo_matched").tolist() == [1, 1, 1, 1, 0]
+    np.testing.assert_allclose(np.exp(_col(rows1, "other_snr_log")[:4]), [5.5, 6.5, 9.0, 5.0])
+    np.testing.assert_allclose(np.exp(_col(rows2, "other_snr_log")), [6.0, 7.0, 6.5, 5.5])
+    np.testing.assert_allclose(_col(rows1, "other_probability")[:4], [0.5, 0.6, 0.9, 0.5])
+    assert _col(rows1, "other_confident")[:4].tolist() == [0, 0, 1, 0]
+    # The two light curves are matched in 4 frames; the best weaker side is 6.5 σ.
+    np.testing.assert_allclose(_col(rows1, "pair_s")[:4], 4 / 30)
+    np.testing.assert_allclose(np.exp(_col(rows2, "pair_peak_snr_log")), 6.5)
+    assert np.all(_col(rows1, "gap_deg")[:4] < 0.01)  # noise-free positions
+    # Unmatched: every stereo column but the flag is missing.
+    stereo = [FEATURES.index(n) for n in FEATURES[FEATURES.index("other_snr_log") :]]
+    assert np.all(np.isnan(rows1[4, stereo]))
+
+
+def test_own_evidence_columns_describe_the_light_curve() -> None:
+    candidates, evidence = _scene()
+    rows1, _ = _features(candidates, evidence, fps=30.0)
+    np.testing.assert_allclose(np.exp(_col(rows1, "snr_log")), [6.0, 7.0, 6.5, 5.5, 4.5])
+    np.testing.assert_allclose(_col(rows1, "lit_s"), [4 / 30] * 4 + [1 / 30])
+    np.testing.assert_allclose(np.exp(_col(rows1, "chain_peak_snr_log")), [7.0] * 4 + [4.5])
+    np.testing.assert_allclose(_col(rows1, "chain_candidates_s"), [4 / 30] * 4 + [1 / 30])
+    verdicts = rows1[:, [FEATURES.index(f"verdict_{v.name.lower()}") for v in Verdict]]
+    assert verdicts.sum(axis=1).tolist() == [1] * 5 and np.all(verdicts[:, 1] == 1)
+    assert np.all(np.isnan(_col(rows1, "recurrence")))  # not measured here
+    assert np.all(_col(rows1, "flicker_duty") > 0)
+
+
+def test_durations_read_the_same_at_another_frame_rate() -> None:
+    """A flash lit 4 frames at 30 fps lights 8 at 60: the same seconds."""
+    at30 = _features(*_scene(4), fps=30.0)[0]
+    at60 = _features(*_scene(8), fps=60.0)[0]
+    for name in ("lit_s", "candidate_lit_s", "chain_candidates_s", "pair_s"):
+        np.testing.assert_allclose(_col(at60, name)[0], _col(at30, name)[0])
+    np.testing.assert_allclose(_col(at60, "pair_s")[:8], 8 / 60)

@@ -1,0 +1,139 @@
+"""The evidence model: the final decision from all the evidence (pipeline.evidence_model)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from pipeline.acceptance import Evidence, Verdict, spot_chains, steady_frames
+from pipeline.classify import DEFAULT_MODEL_NAME
+from pipeline.detections import Detections
+from pipeline.evidence_features import FEATURES, stereo_matches
+from pipeline.evidence_model import (
+    DEFAULT_EVIDENCE_MODEL,
+    EvidenceModel,
+    acceptance_counts,
+    evidence_model,
+    weigh,
+)
+from pipeline.geometry import Pose, bearing_to_pixel
+from pipeline.params import AcceptanceParams, ClassifierParams, FlickerParams, TriangulationParams
+
+WIDTH, FPS, SEPARATION = 640, 30.0, 1.5
+POSE = Pose(np.eye(3), [1.0, 0.0, 0.0])
+
+
+def test_the_shipped_model_reads_this_releases_features() -> None:
+    model = EvidenceModel.load(DEFAULT_EVIDENCE_MODEL)
+    assert model.trees.n_features == len(FEATURES)
+    assert 0 < model.threshold < 1 and model.classifier == DEFAULT_MODEL_NAME
+    assert model.card["trained_on"] and model.card["out_of_fold_at_threshold"]
+    assert model.trees.depth <= 6
+
+
+def test_a_model_of_other_features_is_refused(tmp_path) -> None:
+    data = json.loads(DEFAULT_EVIDENCE_MODEL.read_text())
+    data["features"] = data["features"][:-1]
+    path = tmp_path / "old.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(ValueError, match="reads features"):
+        EvidenceModel.load(path)
+
+
+def test_the_rules_decide_without_the_models_classifier() -> None:
+    params = AcceptanceParams()
+    model, why = evidence_model(params, ClassifierParams())
+    assert model is not None and why is None
+    model, why = evidence_model(params, ClassifierParams(model="/models/ffnet_gp360_65_rgb.onnx"))
+    assert model is None and "ffnet_gp360_65_rgb.onnx" in why
+    model, why = evidence_model(params, ClassifierParams(enabled=False))
+    assert model is None and "no patch classifier" in why
+    assert evidence_model(AcceptanceParams(evidence_model=None), ClassifierParams()) == (None, None)
+    assert evidence_model(AcceptanceParams(enabled=False), ClassifierParams()) == (None, None)
+
+
+def _camera(frames, points, snr, probability, camera):
+    local = points if camera == 1 else POSE.world_to_camera2(points, SEPARATION)
+    x, y = bearing_to_pixel(local, WIDTH)
+    det = Detections.from_columns(
+        frames,
+        x,
+        y,
+        snr=snr,
+        flash_probability=probability,
+        peak=np.asarray(snr) * 2.0,
+        recurrence=np.zeros(len(x)),
+    )
+    chain = spot_chains(det.frame, det.x, det.y, WIDTH, 1.0)
+    verdict = np.where(
+        (np.asarray(snr) >= 8) & (np.asarray(probability) >= 0.5),
+        Verdict.CONFIDENT,
+        Verdict.DOUBTFUL,
+    ).astype(np.int8)
+    return det, Evidence(verdict, steady_frames(det.frame, chain), chain)
+
+
+def test_the_shipped_model_accepts_a_faint_flash_both_cameras_see_and_not_lone_grain() -> None:
+    """A 6–7 σ firefly lit 4 frames in both cameras (doubtful by the rules' 8 σ) is a
+    flash; faint spots lit one frame in one camera only, which the classifier doubts,
+    are not."""
+    track = np.array([[4.0 + 0.02 * i, 3.0, 1.0] for i in range(4)])
+    grain = np.array([[-2.0, -5.0, 0.5], [1.0, 6.0, -0.5], [-5.0, 1.0, 1.5]])
+    det1, ev1 = _camera(
+        [10, 11, 12, 13, 40, 80, 120],
+        np.vstack([track, grain]),
+        [6.0, 7.0, 6.5, 6.0, 5.0, 5.5, 4.8],
+        [0.7, 0.8, 0.8, 0.7, 0.3, 0.2, 0.3],
+        1,
+    )
+    det2, ev2 = _camera([10, 11, 12, 13], track, [6.5, 7.0, 7.5, 6.0], [0.7, 0.8, 0.9, 0.7], 2)
+    model = EvidenceModel.load(DEFAULT_EVIDENCE_MODEL)
+    gates = TriangulationParams(max_gap_deg=1.0)
+    matches = stereo_matches((det1, det2), 0, POSE, WIDTH, SEPARATION, gates)
+    weighed = weigh(model, (det1, det2), (ev1, ev2), matches, WIDTH, FPS, FlickerParams())
+    assert weighed.accepted1.tolist() == [True] * 4 + [False] * 3, weighed.probability1
+    assert weighed.accepted2.tolist() == [True] * 4, weighed.probability2
+    assert weighed.matched1.tolist() == [True] * 4 + [False] * 3
+    # A threshold above every probability accepts nothing.
+    none = weigh(model, (det1, det2), (ev1, ev2), matches, WIDTH, FPS, FlickerParams(), 1.0)
+    assert not none.accepted1.any() and not none.accepted2.any()
+
+
+def test_counts_say_what_was_done_with_each_verdict() -> None:
+    v = Verdict
+    verdict = np.array(
+        [
+            v.CONFIDENT,
+            v.CONFIDENT,
+            v.DOUBTFUL,
+            v.DOUBTFUL,
+            v.DOUBTFUL,
+            v.FLICKER,
+            v.STEADY,
+            v.CLASSIFIER,
+            v.RECURRENT,
+            v.RECURRENT,
+        ],
+        np.int8,
+    )
+    accepted = np.array([1, 0, 1, 1, 0, 0, 0, 0, 1, 0], bool)
+    matched = np.array([1, 1, 1, 0, 1, 0, 0, 0, 0, 0], bool)
+    counts = acceptance_counts(verdict, accepted, matched)
+    assert counts == {
+        "candidates": 10,
+        "accepted": 4,
+        "accepted_confident": 1,
+        "accepted_stereo": 1,
+        "accepted_single_camera": 2,
+        "accepted_over_rules": 1,
+        "rejected_confident": 1,
+        "rejected_unconfirmed": 1,
+        "rejected_flicker": 1,
+        "rejected_light_curve": 1,
+        "rejected_classifier": 1,
+        "rejected_recurrent": 1,
+    }
+    rejected = sum(n for k, n in counts.items() if k.startswith("rejected_"))
+    assert counts["candidates"] == counts["accepted"] + rejected

@@ -1,0 +1,43 @@
+"""Training the evidence model (pipeline.training.acceptance)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.evidence_features import FEATURES
+from pipeline.evidence_model import EvidenceModel
+from pipeline.training.acceptance import Night, best_f1_threshold, train
+
+
+def test_the_f1_threshold_cuts_between_distinct_probabilities() -> None:
+    probability = np.array([0.9, 0.8, 0.8, 0.6, 0.3, 0.2])
+    is_flash = np.array([True, True, False, True, False, False])
+    # Cuts: 0.9 → F1 2/4; 0.8 → 4/6; 0.6 → 6/7; 0.3 → 6/8: the best is 0.6.
+    assert best_f1_threshold(probability, is_flash) == 0.6
+
+
+def _night(seed: int, scenario: str, rng: np.random.Generator) -> Night:
+    n = 600
+    rows = rng.normal(size=(n, len(FEATURES)))
+    rows[:, FEATURES.index("stereo_matched")] = rng.random(n) < 0.5
+    # A flash: high SNR, or a weaker one the other camera confirms.
+    snr = rows[:, FEATURES.index("snr_log")]
+    matched = rows[:, FEATURES.index("stereo_matched")] == 1
+    is_flash = (snr + 1.5 * matched + rng.normal(0, 0.3, n)) > 1.0
+    return Night(f"{scenario} s{seed}", scenario, seed, rows, is_flash)
+
+
+def test_a_model_learns_evidence_and_writes_its_card(tmp_path) -> None:
+    rng = np.random.default_rng(0)
+    nights = [_night(seed, scenario, rng) for seed in (1, 2, 3) for scenario in ("a", "b")]
+    model, figures = train(nights, "flashnet2.onnx", seed=0, folds=3)
+    assert set(figures) == {"a", "b"}
+    assert all(f["precision"] > 0.9 and f["recall_of_candidates"] > 0.9 for f in figures.values())
+    assert model.card["trained_on"] == [n.name for n in nights]
+    path = tmp_path / "model.json"
+    model.to_json(path)
+    back = EvidenceModel.load(path)
+    assert back.threshold == model.threshold and back.classifier == "flashnet2.onnx"
+    test = _night(9, "a", rng)
+    accepted = back.probability(test.rows) >= back.threshold
+    assert np.mean(accepted == test.is_flash) > 0.9
