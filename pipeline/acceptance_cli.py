@@ -60,12 +60,12 @@ def _train_acceptance(args: argparse.Namespace) -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     model.to_json(args.out)
     print(f"threshold {model.threshold:.3f} (largest out-of-fold F1); out of fold at it:")
-    print(f"{'scenario':14s} {'accepted':>9s} {'true':>7s} {'precision':>9s} {'recall':>7s}")
+    print(f"{'nights':26s} {'accepted':>9s} {'true':>7s} {'precision':>9s} {'recall':>7s}")
     for name, f in figures.items():
         precision, recall = (
             "-" if math.isnan(v) else f"{v:.3f}"
             for v in (f["precision"], f["recall_of_candidates"])
         )
-        print(f"{name:14s} {f['accepted']:9d} {f['true']:7d} {precision:>9s} {recall:>7s}")
+        print(f"{name:26s} {f['accepted']:9d} {f['true']:7d} {precision:>9s} {recall:>7s}")
     print(f"wrote {args.out}")
     return 0

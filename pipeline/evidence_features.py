@@ -50,13 +50,12 @@ _OWN: tuple[str, ...] = (
     "flicker_duty",
     *_VERDICTS,
 )
+#: Own columns of the matched candidate of the other camera, read as ``other_<name>``.
+_PARTNER = ("snr_log", "probability", "lit_s", "verdict_confident")
 _STEREO: tuple[str, ...] = (
     "stereo_matched",
-    "other_snr_log",
-    "other_probability",
-    "other_lit_s",
+    *(f"other_{name}" for name in _PARTNER),
     "other_plausible",
-    "other_confident",
     "gap_deg",
     "pair_s",
     "pair_peak_snr_log",
@@ -142,29 +141,17 @@ def candidate_features(
     (ndarray, ndarray)
         Shapes (N1, len(FEATURES)) and (N2, len(FEATURES)).
     """
-    pair = _pair_statistics(candidates, evidence, matches)
+    pair = _pair_statistics(candidates, evidence, matches, fps)
+    own = [
+        _own_features(c, e, width, fps, flicker) for c, e in zip(candidates, evidence, strict=True)
+    ]
     rows = []
-    for camera in (0, 1):
-        own, other = (
-            (matches.index1, matches.index2) if camera == 0 else (matches.index2, matches.index1)
-        )
-        rows.append(
-            np.column_stack(
-                [
-                    _own_features(candidates[camera], evidence[camera], width, fps, flicker),
-                    _stereo_features(
-                        len(candidates[camera]),
-                        own,
-                        candidates[1 - camera].select(other),
-                        evidence[1 - camera],
-                        other,
-                        matches.gap_deg,
-                        pair,
-                        fps,
-                    ),
-                ]
-            )
-        )
+    for camera, (mine, theirs) in enumerate(
+        ((matches.index1, matches.index2), (matches.index2, matches.index1))
+    ):
+        partner = own[1 - camera]
+        stereo = _stereo_features(len(own[camera]), mine, partner[theirs], matches.gap_deg, pair)
+        rows.append(np.column_stack([own[camera], stereo]))
     return rows[0], rows[1]
 
 
@@ -208,15 +195,17 @@ class _PairStatistics:
 
     length: NDArray[np.int64]
     peak_snr: NDArray[np.float64]
+    fps: float
 
 
 def _pair_statistics(
     candidates: tuple[Detections, Detections],
     evidence: tuple[Evidence, Evidence],
     matches: StereoMatches,
+    fps: float,
 ) -> _PairStatistics:
     if len(matches.index1) == 0:
-        return _PairStatistics(np.zeros(0, np.int64), np.zeros(0))
+        return _PairStatistics(np.zeros(0, np.int64), np.zeros(0), fps)
     curves = np.column_stack([evidence[0].chain[matches.index1], evidence[1].chain[matches.index2]])
     group = np.unique(curves, axis=0, return_inverse=True)[1].reshape(-1)
     weaker = np.fmin(
@@ -225,37 +214,35 @@ def _pair_statistics(
     )
     peak = np.full(group.max() + 1, -np.inf)
     np.fmax.at(peak, group, weaker)
-    return _PairStatistics(np.bincount(group)[group], peak[group])
+    return _PairStatistics(np.bincount(group)[group], peak[group], fps)
 
 
 def _stereo_features(
     n: int,
-    own: NDArray[np.intp],
-    partner: Detections,
-    partner_evidence: Evidence,
-    partner_rows: NDArray[np.intp],
+    mine: NDArray[np.intp],
+    partner: NDArray[np.float64],
     gap_deg: NDArray[np.float64],
     pair: _PairStatistics,
-    fps: float,
 ) -> NDArray[np.float64]:
-    """Stereo columns of one camera's candidates; NaN where a candidate is unmatched
-    (``stereo_matched`` 0)."""
+    """Stereo columns of one camera's `n` candidates, of which rows `mine` are matched
+    with candidates whose own feature rows are `partner`; NaN where a candidate is
+    unmatched (``stereo_matched`` 0)."""
     out = np.full((n, len(_STEREO)), np.nan)
     out[:, 0] = 0.0
-    if len(own) == 0:
+    if len(mine) == 0:
         return out
-    verdict = partner_evidence.verdict[partner_rows]
+    columns = [_OWN.index(name) for name in _PARTNER]
+    plausible = (
+        partner[:, _OWN.index("verdict_confident")] + partner[:, _OWN.index("verdict_doubtful")]
+    )
     with np.errstate(divide="ignore", invalid="ignore"):
-        out[own] = np.column_stack(
+        out[mine] = np.column_stack(
             [
-                np.ones(len(own)),
-                np.log(partner.snr.astype(np.float64)),
-                partner.flash_probability.astype(np.float64),
-                partner_evidence.lit_frames[partner_rows] / fps,
-                verdict <= Verdict.DOUBTFUL,
-                verdict == Verdict.CONFIDENT,
+                np.ones(len(mine)),
+                partner[:, columns],
+                plausible,
                 gap_deg,
-                pair.length / fps,
+                pair.length / pair.fps,
                 np.log(pair.peak_snr),
             ]
         )

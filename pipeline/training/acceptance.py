@@ -57,14 +57,15 @@ class Night:
     ----------
     name : str
         ``<scenario> s<seed> <width>px <fps>fps``.
-    scenario : str
+    kind : str
+        The same without the seed: what the out-of-fold figures are pooled by.
     seed : int
     rows : ndarray, shape (N, len(FEATURES))
     is_flash : ndarray of bool, shape (N,)
     """
 
     name: str
-    scenario: str
+    kind: str
     seed: int
     rows: NDArray[np.float64]
     is_flash: NDArray[np.bool_]
@@ -97,8 +98,9 @@ def night_rows(results: Path, truth: GroundTruth, params: ProcessParams) -> Nigh
         params.flicker,
     )
     labels = [match_detections(candidates[c], truth, c + 1).true_detection for c in (0, 1)]
+    kind = f"{truth.scenario} {truth.width}px {truth.fps:g}fps"
     name = f"{truth.scenario} s{truth.seed} {truth.width}px {truth.fps:g}fps"
-    return Night(name, truth.scenario, truth.seed, np.vstack(rows), np.concatenate(labels))
+    return Night(name, kind, truth.seed, np.vstack(rows), np.concatenate(labels))
 
 
 def run_params(results: Path) -> ProcessParams:
@@ -175,13 +177,13 @@ def train(
     Returns
     -------
     (EvidenceModel, dict)
-        The model, and the out-of-fold figures per scenario at its threshold (also in
-        the model's card).
+        The model, and the out-of-fold figures per kind of night (scenario, width, frame
+        rate) at its threshold (also in the model's card).
     """
     rows = np.vstack([n.rows for n in nights])
     is_flash = np.concatenate([n.is_flash for n in nights])
     seeds = np.concatenate([np.full(len(n.is_flash), n.seed) for n in nights])
-    scenario = np.concatenate([np.full(len(n.is_flash), n.scenario) for n in nights])
+    kind = np.concatenate([np.full(len(n.is_flash), n.kind) for n in nights])
     oof = np.full(len(rows), np.nan)
     for train_rows, test_rows in grouped_folds(seeds, is_flash, min(folds, len(set(seeds))), seed):
         oof[test_rows] = fit_trees(rows[train_rows], is_flash[train_rows], seed).predict_proba(
@@ -189,8 +191,8 @@ def train(
         )
     threshold = best_f1_threshold(oof, is_flash)
     figures = {
-        name: operating_point(oof[scenario == name], is_flash[scenario == name], threshold)
-        for name in sorted(set(scenario))
+        name: operating_point(oof[kind == name], is_flash[kind == name], threshold)
+        for name in sorted(set(kind))
     }
     card = {
         "name": "evidence_trees",

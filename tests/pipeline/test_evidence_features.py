@@ -63,7 +63,7 @@ def test_a_flash_seen_by_both_cameras_carries_the_other_cameras_evidence() -> No
     np.testing.assert_allclose(np.exp(_col(rows1, "other_snr_log")[:4]), [5.5, 6.5, 9.0, 5.0])
     np.testing.assert_allclose(np.exp(_col(rows2, "other_snr_log")), [6.0, 7.0, 6.5, 5.5])
     np.testing.assert_allclose(_col(rows1, "other_probability")[:4], [0.5, 0.6, 0.9, 0.5])
-    assert _col(rows1, "other_confident")[:4].tolist() == [0, 0, 1, 0]
+    assert _col(rows1, "other_verdict_confident")[:4].tolist() == [0, 0, 1, 0]
     # The two light curves are matched in 4 frames; the best weaker side is 6.5 σ.
     np.testing.assert_allclose(_col(rows1, "pair_s")[:4], 4 / 30)
     np.testing.assert_allclose(np.exp(_col(rows2, "pair_peak_snr_log")), 6.5)

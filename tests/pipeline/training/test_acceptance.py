@@ -24,7 +24,7 @@ def _night(seed: int, scenario: str, rng: np.random.Generator) -> Night:
     snr = rows[:, FEATURES.index("snr_log")]
     matched = rows[:, FEATURES.index("stereo_matched")] == 1
     is_flash = (snr + 1.5 * matched + rng.normal(0, 0.3, n)) > 1.0
-    return Night(f"{scenario} s{seed}", scenario, seed, rows, is_flash)
+    return Night(f"{scenario} s{seed}", scenario, seed, rows, is_flash)  # kind: the scenario
 
 
 def test_a_model_learns_evidence_and_writes_its_card(tmp_path) -> None:
