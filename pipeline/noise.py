@@ -62,7 +62,9 @@ class TileNoise:
         self._sum = np.zeros((2, *grid), np.int64)
         self._n = 0
         self._next = 0
-        self._map: NDArray[np.float32] | None = None
+        # σ and a threshold level per pixel (`pixel_maps`), rebuilt after each update.
+        self._maps: NDArray[np.float32] | None = None
+        self._stale = True
         # Full-frame scratch images, reused from frame to frame (shape of the first).
         self._scratch: NDArray[np.float32] | None = None
 
@@ -99,7 +101,7 @@ class TileNoise:
         self._sum += quantised
         self._ring[self._next] = quantised
         self._next = (self._next + 1) % len(self._ring)
-        self._map = None
+        self._stale = True
 
     def sigma(self) -> NDArray[np.float32]:
         """Current ``σ`` per tile in grey levels (zeros before the first frame)."""
@@ -108,20 +110,25 @@ class TileNoise:
         mean_negative, share_negative = self._sum / (self._n * _QUANTUM)
         return negative_side_sigma(mean_negative, share_negative).astype(np.float32)
 
-    def pixel_sigma(self, shape: tuple[int, int], floor: float) -> NDArray[np.float32]:
-        """``max(σ, floor)`` of each pixel's tile over an image of `shape` (rows, columns).
+    def pixel_maps(
+        self, shape: tuple[int, int], floor: float, factor: float
+    ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+        """``max(σ, floor)`` of each pixel's tile over an image of `shape` (rows,
+        columns), and that times `factor` (a threshold level).
 
-        The map is rebuilt only after an `update` (every `SAMPLE_EVERY`-th frame): the
-        same array is returned until then, so derived maps can be cached on it. It must
-        not be modified.
+        Both maps are rebuilt, in place, only after an `update` (every `SAMPLE_EVERY`-th
+        frame); they must not be modified.
         """
-        if self._map is None or self._map.shape != shape:
+        if self._maps is None or self._maps.shape[1:] != shape:
+            self._maps = np.empty((2, *shape), np.float32)
+            self._stale = True
+        if self._stale:
             tiles = np.maximum(self.sigma(), np.float32(floor))
             height, width = shape
-            self._map = np.asarray(
-                cv2.resize(tiles, (width, height), interpolation=cv2.INTER_NEAREST)
-            )
-        return self._map
+            for tile_map, out in zip((tiles, tiles * np.float32(factor)), self._maps, strict=True):
+                cv2.resize(tile_map, (width, height), dst=out, interpolation=cv2.INTER_NEAREST)
+            self._stale = False
+        return self._maps[0], self._maps[1]
 
 
 def negative_side_sigma(

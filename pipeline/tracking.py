@@ -287,7 +287,6 @@ class _FrameDetector:
         # Binned luminance of this frame and the last, in turn (`recurrence` reads the
         # last frame processed after `process` returns).
         self._small = np.empty((2, *self._binned), np.uint8)
-        self._level: tuple[NDArray[np.float32], NDArray[np.float32]] | None = None
         self._dropped_by_area = 0
         self._dropped_over_cap = 0
         self._faint_over_cap = 0
@@ -305,8 +304,10 @@ class _FrameDetector:
                 if frame.index % SAMPLE_EVERY == 0 or lane.noise.frames == 0:
                     lane.noise.update(filtered)
                 if tracks and frame.index >= self._start:
-                    sigma = lane.noise.pixel_sigma(self._binned, self._params.min_noise)
-                    found = self._detect(filtered, sigma, image, lane.background.level())
+                    sigma, level = lane.noise.pixel_maps(
+                        self._binned, self._params.min_noise, self._params.extent_threshold
+                    )
+                    found = self._detect(filtered, sigma, level, image, lane.background.level())
             lane.background.update(small)
         self._history.add(frame.index, small)
         self._last = (frame.index, small)
@@ -340,10 +341,11 @@ class _FrameDetector:
         self,
         filtered: NDArray[np.float32],
         sigma: NDArray[np.float32],
+        level: NDArray[np.float32],
         luma: NDArray[np.uint8],
         background: NDArray[np.float32],
     ) -> tuple[Blobs, FaintPeaks]:
-        idx, snr = self._extent_pixels(filtered, sigma, background)
+        idx, snr = self._extent_pixels(filtered, sigma, level, background)
         idx, snr = self._limit_pixels(idx, snr)
         labels, blob_snr, peak, (faint_idx, faint_snr) = self._seeded(idx, snr)
         area = np.bincount(labels[labels >= 0], minlength=len(blob_snr)) * self._bin**2
@@ -365,28 +367,24 @@ class _FrameDetector:
         self,
         filtered: NDArray[np.float32],
         sigma: NDArray[np.float32],
+        level: NDArray[np.float32],
         background: NDArray[np.float32],
     ) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
         """Flat indices (ascending) and SNR of the pixels above the extent level.
 
-        `sigma` is the tile estimate (at least ``min_noise``); the floor that grows
-        with the background, ``min_noise + relative_noise · B``, only raises it, so it
-        is applied to the few pixels above the tile level rather than to the frame.
+        `sigma` is the tile estimate (at least ``min_noise``) and `level` that times
+        ``extent_threshold``; the floor that grows with the background, ``min_noise +
+        relative_noise · B``, only raises it, so it is applied to the few pixels above
+        the tile level rather than to the frame.
         """
         extent = np.float32(self._params.extent_threshold)
-        np.greater(filtered, self._extent_level(sigma), out=self._mask)
+        np.greater(filtered, level, out=self._mask)
         idx = np.flatnonzero(self._mask)  # fast on bool, slow on a uint8 mask
         floor = background.ravel()[idx] * self._params.relative_noise + self._params.min_noise
         noise = np.maximum(sigma.ravel()[idx].astype(np.float64), floor)
         snr = filtered.ravel()[idx] / noise
         above = snr > extent
         return idx[above], snr[above]
-
-    def _extent_level(self, sigma: NDArray[np.float32]) -> NDArray[np.float32]:
-        """``extent_threshold · σ``, recomputed only when the noise map is rebuilt."""
-        if self._level is None or self._level[0] is not sigma:
-            self._level = (sigma, sigma * np.float32(self._params.extent_threshold))
-        return self._level[1]
 
     def _limit_pixels(
         self, idx: NDArray[np.intp], snr: NDArray[np.float64]

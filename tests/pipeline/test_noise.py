@@ -78,15 +78,21 @@ def test_before_any_frame_sigma_is_zero_and_grids_cover_the_image() -> None:
     assert tile_grid((10, 20), 32) == (1, 1)
 
 
-def test_the_pixel_map_floors_each_tile_and_is_rebuilt_only_after_an_update() -> None:
+def test_the_pixel_maps_floor_each_tile_and_are_rebuilt_only_after_an_update() -> None:
     noise = TileNoise((1, 2), window=4)
     left = np.zeros((4, 8), np.float32)
     left[:, :4] = np.tile([-2.0, 2.0], (4, 2))  # σ ≈ √(2π) on the left tile, 0 on the right
     noise.update(left)
-    pixels = noise.pixel_sigma((4, 8), floor=0.5)
-    assert pixels.shape == (4, 8)
+    pixels, level = noise.pixel_maps((4, 8), floor=0.5, factor=2.5)
+    assert pixels.shape == level.shape == (4, 8)
     np.testing.assert_allclose(pixels[:, :4], noise.sigma()[0, 0])
     np.testing.assert_allclose(pixels[:, 4:], 0.5)
-    assert noise.pixel_sigma((4, 8), floor=0.5) is pixels  # cached until the noise changes
+    np.testing.assert_array_equal(level, pixels * np.float32(2.5))
+    before = pixels.copy()
+    pixels[:] = -1.0  # not rebuilt until the noise changes: the same buffers come back
+    again, _ = noise.pixel_maps((4, 8), floor=0.5, factor=2.5)
+    assert np.shares_memory(again, pixels) and np.all(again == -1.0)
     noise.update(np.zeros((4, 8), np.float32))
-    assert noise.pixel_sigma((4, 8), floor=0.5) is not pixels
+    rebuilt, _ = noise.pixel_maps((4, 8), floor=0.5, factor=2.5)
+    np.testing.assert_allclose(rebuilt[:, :4], noise.sigma()[0, 0])
+    assert not np.array_equal(rebuilt, before)
