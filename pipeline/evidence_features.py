@@ -30,7 +30,7 @@ from numpy.typing import NDArray
 
 from pipeline.acceptance import Evidence, Verdict, steady_frames
 from pipeline.detections import Detections
-from pipeline.flicker import flicker_duty
+from pipeline.flicker import flicker_duty, spot_tree
 from pipeline.geometry import Pose
 from pipeline.params import FlickerParams, TriangulationParams
 from pipeline.triangulate import triangulate
@@ -48,6 +48,7 @@ _OWN: tuple[str, ...] = (
     "chain_peak_probability",
     "recurrence",
     "flicker_duty",
+    "spot_revisits",
     *_VERDICTS,
 )
 #: Own columns of the matched candidate of the other camera, read as ``other_<name>``.
@@ -171,6 +172,7 @@ def _own_features(
     np.fmax.at(peak_probability, ev.chain, probability)
     duty = flicker_duty(det.frame, det.x, det.y, width, fps, flicker.radius_deg, flicker.window_s)
     verdicts = np.eye(len(Verdict))[ev.verdict]
+    revisits = _spot_revisits(det, ev.chain, width, fps)
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.column_stack(
             [
@@ -184,9 +186,35 @@ def _own_features(
                 peak_probability[ev.chain],
                 det.recurrence.astype(np.float64),
                 duty,
+                revisits[ev.chain],
                 verdicts,
             ]
         )
+
+
+#: A light curve revisits its spot when another one lies this close (degrees) within
+#: `REVISIT_WINDOW_S` on either side: a firefly moves between its flashes, a glint or a
+#: hole in the leaves lights the same spot again and again.
+REVISIT_RADIUS_DEG = 0.5
+REVISIT_WINDOW_S = 10.0
+
+
+def _spot_revisits(
+    det: Detections, chain: NDArray[np.intp], width: int, fps: float
+) -> NDArray[np.float64]:
+    """Per chain: how many other chains lit the same spot (their mean positions within
+    `REVISIT_RADIUS_DEG`, their mean frames within `REVISIT_WINDOW_S`)."""
+    n_chains = int(chain.max()) + 1
+    first = np.full(n_chains, len(chain))
+    np.minimum.at(first, chain, np.arange(len(chain)))
+    dx = (det.x - det.x[first[chain]] + width / 2) % width - width / 2
+    size = np.bincount(chain, minlength=n_chains)
+    x = (det.x[first] + np.bincount(chain, dx, n_chains) / size) % width
+    y = np.bincount(chain, det.y, n_chains) / size
+    t = np.bincount(chain, det.frame.astype(np.float64), n_chains) / size
+    tree = spot_tree(t / (REVISIT_WINDOW_S * fps), x, y, width, REVISIT_RADIUS_DEG)
+    counts = tree.query_ball_point(tree.data, r=1.0, p=np.inf, return_length=True)
+    return np.asarray(counts, np.float64) - 1.0
 
 
 @dataclass(frozen=True)

@@ -93,3 +93,33 @@ def test_durations_read_the_same_at_another_frame_rate() -> None:
     for name in ("lit_s", "candidate_lit_s", "chain_candidates_s", "pair_s"):
         np.testing.assert_allclose(_col(at60, name)[0], _col(at30, name)[0])
     np.testing.assert_allclose(_col(at60, "pair_s")[:8], 8 / 60)
+
+
+def test_a_spot_lit_again_and_again_counts_its_revisits_a_passing_firefly_does_not() -> None:
+    """A hole in the leaves lights one pixel for 3 frames every second; a firefly flashes
+    as often but has moved several degrees by its next flash."""
+    starts = np.arange(0, 150, 30)
+    frames = np.concatenate([s + np.arange(3) for s in starts])
+    hole = np.column_stack([np.full(len(frames), 200.0), np.full(len(frames), 140.0)])
+    firefly = np.column_stack([400.0 + 2.0 * frames / 30 * 3, np.full(len(frames), 100.0)])
+    x = np.r_[hole[:, 0], firefly[:, 0]]
+    y = np.r_[hole[:, 1], firefly[:, 1]]
+    det = Detections.from_columns(
+        np.r_[frames, frames],
+        x,
+        y,
+        snr=np.full(2 * len(frames), 9.0),
+        flash_probability=np.full(2 * len(frames), 0.9),
+        peak=np.full(2 * len(frames), 30.0),
+    )
+    chain = spot_chains(det.frame, det.x, det.y, WIDTH, 1.0)
+    ev = Evidence(np.zeros(len(det), np.int8), steady_frames(det.frame, chain), chain)
+    empty = Detections.from_columns([], [], [])
+    empty_ev = Evidence(np.zeros(0, np.int8), np.zeros(0, np.int64), np.zeros(0, np.intp))
+    matches = stereo_matches((det, empty), 0, POSE, WIDTH, SEPARATION, GATES)
+    rows, _ = candidate_features(
+        (det, empty), (ev, empty_ev), matches, WIDTH, 30.0, FlickerParams()
+    )
+    revisits = _col(rows, "spot_revisits")
+    assert revisits[: len(frames)].tolist() == [len(starts) - 1] * len(frames)
+    assert revisits[len(frames) :].tolist() == [0] * len(frames)
