@@ -342,11 +342,18 @@ def confirm(
         # both cameras. Points of other spots that only happen to lie close in 3D in
         # consecutive frames are not (a 3D streak is no evidence of its own), and a far
         # flash's depth noise breaks 3D links anyway.
-        curves = np.column_stack([ev1.chain[rows1[points.index1]], ev2.chain[rows2[points.index2]]])
-        pair = np.unique(curves, axis=0, return_inverse=True)[1].reshape(-1)
-        good = _rises(pair, weaker, params) | ~(weaker < params.stereo_snr)
+        length, peak = light_curve_pairs(
+            ev1.chain[rows1[points.index1]],
+            ev2.chain[rows2[points.index2]],
+            np.nan_to_num(weaker, nan=np.inf),
+        )
+        # A flash rises to a peak; wind-shaken leaves can agree frame after frame too,
+        # but stay faint.
+        rises = (length >= params.min_streak) & (peak >= params.streak_peak_snr)
+        good = rises | ~(weaker < params.stereo_snr)
         if params.anchored:
             sure = ev1.confident[rows1[points.index1]] | ev2.confident[rows2[points.index2]]
+            pair = _pair_groups(ev1.chain[rows1[points.index1]], ev2.chain[rows2[points.index2]])
             anchored = np.zeros(len(points), bool)
             anchored[pair[sure]] = True
             good &= anchored[pair]
@@ -363,19 +370,24 @@ def confirm(
     )
 
 
-def _rises(
-    group: NDArray[np.intp], weaker: NDArray[np.floating], params: AcceptanceParams
-) -> BoolArray:
-    """Per stereo match: its group (the pair of light curves it joins) spans at least
-    ``min_streak`` matches, one of which stands ``streak_peak_snr`` σ in both cameras
-    (`weaker`: the fainter camera's SNR, NaN for none known).
+def light_curve_pairs(
+    chain1: NDArray[np.integer], chain2: NDArray[np.integer], weaker: NDArray[np.floating]
+) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """Per stereo match, of the pair of light curves it joins (camera 1's `chain1`,
+    camera 2's `chain2`): how many matches join the same two, and the largest `weaker`
+    (the fainter camera's SNR) among them.
 
-    A flash rises to a peak; wind-shaken leaves can agree frame after frame too, but
-    stay faint.
+    The same two light curves matched frame after frame are one flash seen by both
+    cameras.
     """
-    if len(group) == 0:
-        return np.zeros(0, bool)
-    length = np.bincount(group)
-    peak = np.zeros(len(length))
-    np.fmax.at(peak, group, np.nan_to_num(weaker, nan=np.inf))
-    return (length[group] >= params.min_streak) & (peak[group] >= params.streak_peak_snr)
+    if len(chain1) == 0:
+        return np.zeros(0, np.int64), np.zeros(0)
+    group = _pair_groups(chain1, chain2)
+    peak = np.full(int(group.max()) + 1, -np.inf)
+    np.fmax.at(peak, group, np.asarray(weaker, np.float64))
+    return np.bincount(group)[group], peak[group]
+
+
+def _pair_groups(chain1: NDArray[np.integer], chain2: NDArray[np.integer]) -> NDArray[np.intp]:
+    curves = np.column_stack([chain1, chain2])
+    return np.unique(curves, axis=0, return_inverse=True)[1].reshape(-1).astype(np.intp)

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from pipeline.acceptance import Evidence, Verdict, steady_frames
+from pipeline.acceptance import Evidence, Verdict, light_curve_pairs, steady_frames
 from pipeline.detections import Detections
 from pipeline.flicker import flicker_duty, spot_tree
 from pipeline.geometry import Pose
@@ -142,7 +142,13 @@ def candidate_features(
     (ndarray, ndarray)
         Shapes (N1, len(FEATURES)) and (N2, len(FEATURES)).
     """
-    pair = _pair_statistics(candidates, evidence, matches, fps)
+    pair_length, pair_peak = light_curve_pairs(
+        evidence[0].chain[matches.index1],
+        evidence[1].chain[matches.index2],
+        np.fmin(candidates[0].snr[matches.index1], candidates[1].snr[matches.index2]),
+    )
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pair = np.column_stack([pair_length / fps, np.log(pair_peak)])
     own = [
         _own_features(c, e, width, fps, flicker) for c, e in zip(candidates, evidence, strict=True)
     ]
@@ -217,44 +223,17 @@ def _spot_revisits(
     return np.asarray(counts, np.float64) - 1.0
 
 
-@dataclass(frozen=True)
-class _PairStatistics:
-    """Per stereo match: how long its two light curves are matched, and their best SNR."""
-
-    length: NDArray[np.int64]
-    peak_snr: NDArray[np.float64]
-    fps: float
-
-
-def _pair_statistics(
-    candidates: tuple[Detections, Detections],
-    evidence: tuple[Evidence, Evidence],
-    matches: StereoMatches,
-    fps: float,
-) -> _PairStatistics:
-    if len(matches.index1) == 0:
-        return _PairStatistics(np.zeros(0, np.int64), np.zeros(0), fps)
-    curves = np.column_stack([evidence[0].chain[matches.index1], evidence[1].chain[matches.index2]])
-    group = np.unique(curves, axis=0, return_inverse=True)[1].reshape(-1)
-    weaker = np.fmin(
-        candidates[0].snr[matches.index1].astype(np.float64),
-        candidates[1].snr[matches.index2].astype(np.float64),
-    )
-    peak = np.full(group.max() + 1, -np.inf)
-    np.fmax.at(peak, group, weaker)
-    return _PairStatistics(np.bincount(group)[group], peak[group], fps)
-
-
 def _stereo_features(
     n: int,
     mine: NDArray[np.intp],
     partner: NDArray[np.float64],
     gap_deg: NDArray[np.float64],
-    pair: _PairStatistics,
+    pair: NDArray[np.float64],
 ) -> NDArray[np.float64]:
     """Stereo columns of one camera's `n` candidates, of which rows `mine` are matched
-    with candidates whose own feature rows are `partner`; NaN where a candidate is
-    unmatched (``stereo_matched`` 0)."""
+    with candidates whose own feature rows are `partner` (`pair`: each match's light-curve
+    pair length in seconds and log best weaker SNR); NaN where a candidate is unmatched
+    (``stereo_matched`` 0)."""
     out = np.full((n, len(_STEREO)), np.nan)
     out[:, 0] = 0.0
     if len(mine) == 0:
@@ -270,8 +249,7 @@ def _stereo_features(
                 partner[:, columns],
                 plausible,
                 gap_deg,
-                pair.length / pair.fps,
-                np.log(pair.peak_snr),
+                pair,
             ]
         )
     return out
