@@ -48,9 +48,11 @@ threshold comparison and the EWMA update (OpenCV, vectorised). Everything after 
 (labelling as a sparse graph of the candidate pixels with `scipy.sparse.csgraph`, local
 maxima, sub-pixel peaks) touches the candidate pixels only. Candidates are classified
 in batches of `CLASSIFY_BATCH` patches gathered across frames. OpenCV runs on one
-thread here: the decoder's frame threads keep the cores busy. At 3840 × 1920 with 44
-candidates per frame: 0.77 × decode-only throughput without the classifier, 0.61 × with
-it and the recurrence history (`bench/bench_tracking.py`).
+thread here: the decoder's frame threads keep the cores busy. The full-frame images of
+the loop (binned luminance, foreground, filtered foreground, noise scratch and maps) are
+allocated once and reused: fresh ones cost the kernel ~1,700 page faults a frame at 4K.
+At 3840 × 1920 with 39 candidates per frame: 0.64–0.69 × decode-only throughput with the
+classifier and the recurrence history (`bench/bench_tracking.py`).
 """
 
 from __future__ import annotations

@@ -23,7 +23,7 @@ def _night(seed: int, scenario: str, rng: np.random.Generator) -> Night:
     # A flash: high SNR, or a weaker one the other camera confirms.
     snr = rows[:, FEATURES.index("snr_log")]
     matched = rows[:, FEATURES.index("stereo_matched")] == 1
-    is_flash = (snr + 1.5 * matched + rng.normal(0, 0.3, n)) > 1.0
+    is_flash = (snr + 1.5 * matched + rng.normal(0, 0.1, n)) > 1.0
     return Night(f"{scenario} s{seed}", scenario, seed, rows, is_flash)  # kind: the scenario
 
 
