@@ -8,7 +8,10 @@ the delay and the pose are known, from the other one:
   (faint peaks counted), how long it is a candidate, how many candidates the chain
   holds, the chain's best SNR and probability;
 * the artifact tests: recurrence (`pipeline.recurrence`), flicker duty
-  (`pipeline.flicker`) and the step-1 verdict of the rules (`Verdict`, one-hot);
+  (`pipeline.flicker`), how many other light curves lit the same spot within seconds
+  (`REVISIT_RADIUS_DEG`, `REVISIT_WINDOW_S`: a firefly moves between its flashes, a
+  hole in the leaves lights one pixel again and again) and the step-1 verdict of the
+  rules (`Verdict`, one-hot);
 * stereo: whether the candidate is matched with a candidate of the other camera in the
   synchronised frame within the triangulation gates (`pipeline.triangulate`), that
   candidate's SNR, probability, light curve and verdict, the ray gap as an angle, and
