@@ -331,9 +331,7 @@ def confirm(
     confirmed = [np.zeros(len(det1), bool), np.zeros(len(det2), bool)]
     if params.enabled and params.stereo:
         rows1, rows2 = np.flatnonzero(ev1.plausible), np.flatnonzero(ev2.plausible)
-        gates = triangulation.model_copy(
-            update={"max_gap_deg": min(triangulation.max_gap_deg, params.stereo_max_gap_deg)}
-        )
+        gates = stereo_gates(params, triangulation)
         points = triangulate(
             det1.select(rows1), det2.select(rows2), delay_frames, pose, width, separation_m, gates
         )
@@ -367,6 +365,16 @@ def confirm(
         accepted2=ev2.confident | stereo2,
         stereo1=stereo1,
         stereo2=stereo2,
+    )
+
+
+def stereo_gates(
+    params: AcceptanceParams, triangulation: TriangulationParams
+) -> TriangulationParams:
+    """The triangulation gates of a stereo match that counts as evidence: the ray gap at
+    most ``params.stereo_max_gap_deg`` (and the triangulation's own limit)."""
+    return triangulation.model_copy(
+        update={"max_gap_deg": min(triangulation.max_gap_deg, params.stereo_max_gap_deg)}
     )
 
 

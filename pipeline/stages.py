@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.acceptance import Evidence, assess, confirm, refined
+from pipeline.acceptance import Evidence, assess, confirm, refined, stereo_gates
 from pipeline.artifacts import (
     ACCEPTANCE_NPZ,
     CALIBRATION_JSON,
@@ -363,9 +363,7 @@ def accept(ctx: StageContext) -> StageResult:
     candidates, evidence = _candidates(ctx)
     params = ctx.params.acceptance
     model, why_rules = evidence_model(params, ctx.params.classifier)
-    gates = ctx.params.triangulation.model_copy(
-        update={"max_gap_deg": min(ctx.params.triangulation.max_gap_deg, params.stereo_max_gap_deg)}
-    )
+    gates = stereo_gates(params, ctx.params.triangulation)
     if model is not None:
         matches = stereo_matches(
             candidates,

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from pipeline.acceptance import Evidence
+from pipeline.acceptance import Evidence, stereo_gates
 from pipeline.artifacts import CALIBRATION_JSON, EVIDENCE_NPZ, candidates_name
 from pipeline.detections import Detections
 from pipeline.evaluate import match_detections
@@ -76,10 +76,7 @@ def night_rows(results: Path, truth: GroundTruth, params: ProcessParams) -> Nigh
     calibration = read_calibration(results / CALIBRATION_JSON)
     candidates = tuple(Detections.from_npz(results / candidates_name(c)) for c in (1, 2))
     evidence = tuple(Evidence.load(results / EVIDENCE_NPZ.format(camera=c)) for c in (1, 2))
-    acceptance, triangulation = params.acceptance, params.triangulation
-    gates = triangulation.model_copy(
-        update={"max_gap_deg": min(triangulation.max_gap_deg, acceptance.stereo_max_gap_deg)}
-    )
+    gates = stereo_gates(params.acceptance, params.triangulation)
     pair = (candidates[0], candidates[1])
     matches = stereo_matches(
         pair,
