@@ -46,7 +46,7 @@ from pipeline.graph import StageContext, StageResult, earlier_units, read_record
 from pipeline.jsonio import read_json, write_json
 from pipeline.params import AcceptanceParams, ClassifierParams, validate_separation
 from pipeline.pose import calibrate_pose
-from pipeline.probe import StereoProbe
+from pipeline.probe import LOW_BITS_PER_PIXEL, StereoProbe
 from pipeline.results import (
     Calibration,
     load_points,
@@ -97,7 +97,16 @@ def probe(ctx: StageContext) -> StageResult:
             "codec_cam2": info2.codec,
             "chapters_cam1": len(info1.chapters),
             "chapters_cam2": len(info2.chapters),
-        }
+            "bits_per_pixel_cam1": info1.bits_per_pixel,
+            "bits_per_pixel_cam2": info2.bits_per_pixel,
+        },
+        warnings=[
+            f"camera {camera}: encoded at {bpp:.3f} bit per pixel and frame, under "
+            f"{LOW_BITS_PER_PIXEL}: compression erases faint flashes (record at the "
+            "camera's highest bitrate, and upload the camera's own files)"
+            for camera, bpp in ((1, info1.bits_per_pixel), (2, info2.bits_per_pixel))
+            if bpp is not None and bpp < LOW_BITS_PER_PIXEL
+        ],
     )
 
 

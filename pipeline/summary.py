@@ -31,7 +31,8 @@ def summarise(records: Mapping[Unit, StageResult], params: ProcessParams) -> dic
     -------
     dict
         ``counts``, ``delay_frames``, ``delay_confidence``, ``rotation``,
-        ``translation``, ``residuals``, ``tracking`` (per camera), ``acceptance`` (per
+        ``translation``, ``residuals``, ``recording`` (the probe's frame size, rate,
+        codecs and bits per pixel per camera), ``tracking`` (per camera), ``acceptance`` (per
         camera: candidates accepted and rejected by each kind of evidence), ``clock`` (when
         camera 1's frame 0 was recorded, UTC and local, and the sunset; `pipeline.clock`),
         ``patterns`` (the night's flash-pattern figures; `pipeline.patterns`), ``warnings``,
@@ -43,6 +44,12 @@ def summarise(records: Mapping[Unit, StageResult], params: ProcessParams) -> dic
 
     def value(slug: str, key: str) -> Any:
         return metrics.get(slug, {}).get(key)
+
+    def stage_metrics(slug: str) -> dict[str, Any] | None:
+        """A whole-run stage's metrics without its timing (kept in ``timings_s``)."""
+        if slug not in metrics:
+            return None
+        return {k: v for k, v in metrics[slug].items() if k != "seconds"}
 
     counts: dict[str, Any] = {}
     for camera in CAMERAS:
@@ -72,12 +79,9 @@ def summarise(records: Mapping[Unit, StageResult], params: ProcessParams) -> dic
         "translation": value("pose", "translation"),
         "residuals": value("pose", "residuals") or {},
         "tracking": tracking,
-        "acceptance": {k: v for k, v in metrics["accept"].items() if k != "seconds"}
-        if "accept" in metrics
-        else None,
-        "clock": {k: v for k, v in metrics["clock"].items() if k != "seconds"}
-        if "clock" in metrics
-        else None,
+        "recording": stage_metrics("probe"),
+        "acceptance": stage_metrics("accept"),
+        "clock": stage_metrics("clock"),
         "patterns": value("patterns", "night"),
         "warnings": [w for _, result in ordered for w in result.warnings],
         "timings_s": timings,

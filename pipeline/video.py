@@ -196,7 +196,7 @@ def _probe_chapter(path: Path, first_frame: int) -> tuple[ChapterInfo, _StreamPr
         if not rate or rate <= 0:
             raise VideoError(f"{path.name}: the frame rate is not recorded in the file")
         fps = float(rate)
-        timestamps = _frame_timestamps(container, stream, path)
+        timestamps, video_bytes = _frame_timestamps(container, stream, path)
         if len(timestamps) == 0:
             raise VideoError(f"{path.name}: the video stream has no frames (empty video)")
         _check_constant_rate(timestamps, fps * _tick_s(stream, path), path)
@@ -208,6 +208,7 @@ def _probe_chapter(path: Path, first_frame: int) -> tuple[ChapterInfo, _StreamPr
             codec=stream.codec_context.name,
             first_pts=first_pts,
             creation_time=_creation_time(container, stream),
+            video_bytes=video_bytes,
         )
     return chapter, _StreamProps(width, height, fps)
 
@@ -248,8 +249,8 @@ def _video_stream(container: av.container.InputContainer, path: Path) -> av.Vide
 
 def _frame_timestamps(
     container: av.container.InputContainer, stream: av.VideoStream, path: Path
-) -> NDArray[np.int64]:
-    """Decode timestamps of every frame, without decoding.
+) -> tuple[NDArray[np.int64], int]:
+    """Decode timestamps of every frame, without decoding, and the bytes of the frames.
 
     MP4/MOV carry a sample table: one entry per frame, exact, read without touching the
     media data; the byte range of the last entries tells whether the file is complete.
@@ -259,12 +260,13 @@ def _frame_timestamps(
     if len(entries) > 0 and len(entries) == stream.frames:
         kept = [e for e in entries if not e.is_discard]
         _check_complete(kept, path)
-        return np.array([e.timestamp for e in kept], dtype=np.int64)
+        return np.array([e.timestamp for e in kept], dtype=np.int64), sum(e.size for e in kept)
     try:
-        stamps = [p.dts for p in container.demux(stream) if p.size and p.dts is not None]
+        packets = [(p.dts, p.size) for p in container.demux(stream) if p.size and p.dts is not None]
     except av.FFmpegError as exc:
         raise VideoError(f"{path.name}: cannot read packets ({_reason(exc)})") from None
-    return np.sort(np.array(stamps, dtype=np.int64))
+    dts = np.array([d for d, _ in packets], dtype=np.int64)
+    return np.sort(dts), sum(size for _, size in packets)
 
 
 def _check_complete(entries: Sequence[av.index.IndexEntry], path: Path) -> None:

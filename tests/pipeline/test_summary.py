@@ -10,6 +10,10 @@ from pipeline.summary import summarise
 def test_summary_gathers_counts_calibration_tracking_warnings_and_timings() -> None:
     tracking = {"frames": 600, "flooded_frames": 2, "dropped_over_cap": 7, "seconds": 3.0}
     records = {
+        Unit("probe"): StageResult(
+            {"width": 640, "bits_per_pixel_cam1": 0.05, "seconds": 0.4},
+            ["camera 1: encoded at 0.050 bit per pixel"],
+        ),
         Unit("link"): StageResult(
             {"n_points": 40, "n_streaks": 9, "n_trajectories": 3, "seconds": 0.1}
         ),
@@ -59,7 +63,13 @@ def test_summary_gathers_counts_calibration_tracking_warnings_and_timings() -> N
     assert summary["translation"] == [0, 1, 0] and summary["residuals"] == {"median_deg": 0.01}
     assert summary["tracking"] == {"cam1": tracking}
     assert summary["acceptance"]["cam1"] == {"accepted": 52, "accepted_stereo": 4}
-    assert summary["warnings"] == ["low confidence", "few inliers"]  # in pipeline order
+    assert summary["recording"] == {"width": 640, "bits_per_pixel_cam1": 0.05}
+    # in pipeline order
+    assert summary["warnings"] == [
+        "camera 1: encoded at 0.050 bit per pixel",
+        "low confidence",
+        "few inliers",
+    ]
     assert summary["timings_s"]["track_cam1"] == 3.0 and summary["timings_s"]["link"] == 0.1
     assert summary["parameters"] == ProcessParams().model_dump(mode="json")
 
@@ -68,4 +78,4 @@ def test_summary_of_a_run_that_has_not_started_is_empty_but_complete() -> None:
     summary = summarise({}, ProcessParams())
     assert summary["counts"]["points"] is None and summary["delay_frames"] is None
     assert summary["warnings"] == [] and summary["tracking"] == {}
-    assert summary["acceptance"] is None
+    assert summary["acceptance"] is None and summary["recording"] is None

@@ -64,6 +64,22 @@ def test_probe_record_round_trips_through_json(camera: VideoInfo) -> None:
     assert VideoInfo.from_dict(record) == camera
 
 
+def test_probe_measures_the_bits_spent_per_pixel(camera: VideoInfo) -> None:
+    frame_bytes = [sum(size for _, size in vf.sample_offsets(ch.path)) for ch in camera.chapters]
+    assert [ch.video_bytes for ch in camera.chapters] == frame_bytes
+    pixels = camera.n_frames * camera.width * camera.height
+    assert camera.bits_per_pixel == pytest.approx(8 * sum(frame_bytes) / pixels)
+    # The whole file holds the container's boxes too: more than the frames' bytes.
+    assert sum(ch.path.stat().st_size for ch in camera.chapters) > sum(frame_bytes)
+
+
+def test_a_probe_record_without_sizes_has_no_bits_per_pixel(camera: VideoInfo) -> None:
+    record = camera.to_dict()
+    for chapter in record["chapters"]:
+        del chapter["video_bytes"]
+    assert VideoInfo.from_dict(record).bits_per_pixel is None
+
+
 def test_from_dict_names_a_missing_field(camera: VideoInfo) -> None:
     record = camera.to_dict()
     del record["fps"]
