@@ -479,7 +479,7 @@ def format_table(rows: list[Row]) -> str:
     (frames) and rotation error (degrees), which explain a collapsed 3D recall.
     """
     header = (
-        f"{'night':<20} {'recall c1/c2':>12} {'SNR>=5 c1/c2':>12} {'mf>=5 c1/c2':>11} "
+        f"{'night':<24} {'recall c1/c2':>12} {'SNR>=5 c1/c2':>12} {'mf>=5 c1/c2':>11} "
         f"{'cand>=5 c1/c2':>13} "
         f"{'prec c1/c2':>10} {'cand/frame':>10} {'2cam':>4} {'3D rec':>6} {'(2%)':>6} "
         f"{'3D prec':>7} {'sure: prec share':>16} {'cov':>4} "
@@ -494,7 +494,7 @@ def format_table(rows: list[Row]) -> str:
         delay = accuracy.get("delay_error_frames")
         rotation = accuracy.get("rotation_error_deg")
         lines.append(
-            f"{row.name:<20} {_pair(e, 'accepted', 'recall'):>12} "
+            f"{row.name:<24} {_pair(e, 'accepted', 'recall'):>12} "
             f"{_pair(e, 'accepted', 'recall_snr_ge5'):>12} "
             f"{_pair(e, 'accepted', 'recall_mf_snr_ge5'):>11} "
             f"{_pair(e, 'candidates', 'recall_snr_ge5'):>13} "

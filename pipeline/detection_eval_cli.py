@@ -55,6 +55,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="JSON object of SimulationConfig fields applied to every simulated scenario",
     )
     source.add_argument(
+        "--lossless-twin",
+        action="store_true",
+        help="also score every simulated night encoded losslessly (same scene, fireflies "
+        "and sensor noise; H.264 with the luma bit-exact): what the encoder loses, apart "
+        "from what detection loses",
+    )
+    source.add_argument(
         "--recording",
         type=Path,
         action="append",
@@ -137,8 +144,24 @@ def process_params(overrides_file: Path | None, no_classifier: bool) -> ProcessP
     return ProcessParams().merged(overrides)
 
 
+#: `SimulationConfig` fields of a lossless encoding: x264 at constant quality 0 keeps
+#: the luma plane bit-exact (the chroma is still subsampled 4:2:0).
+LOSSLESS: dict[str, Any] = {"codec": "h264", "crf": 0, "bits_per_pixel": None}
+
+
+def is_lossless(config: dict[str, Any]) -> bool:
+    """Whether a simulated recording's configuration (as in ``truth.json``) is lossless."""
+    return all(config.get(key) == value for key, value in LOSSLESS.items())
+
+
+def night_name(run: dict[str, Any]) -> str:
+    """``<scenario> s<seed>``, with `` lossless`` for a lossless twin: a table row."""
+    return f"{run['scenario']} s{run['seed']}" + (" lossless" if run.get("lossless") else "")
+
+
 def simulation_configs(args: argparse.Namespace) -> list[SimulationConfig]:
-    """One configuration per (scenario, seed) asked for."""
+    """One configuration per (scenario, seed) asked for; with ``--lossless-twin``, each
+    followed by its lossless twin (`LOSSLESS`)."""
     from pipeline.simulate import SimulationConfig
 
     extra: dict[str, Any] = {}
@@ -152,7 +175,10 @@ def simulation_configs(args: argparse.Namespace) -> list[SimulationConfig]:
             fields |= {"width": args.width}
             if scenario == "real3d" and "real3d_csv" not in extra and shared.is_file():
                 fields["real3d_csv"] = shared
-            configs.append(SimulationConfig(**(fields | extra)))
+            config = SimulationConfig(**(fields | extra))
+            configs.append(config)
+            if args.lossless_twin and not is_lossless(config.model_dump()):
+                configs.append(SimulationConfig(**(config.model_dump() | LOSSLESS)))
     return configs
 
 
@@ -267,6 +293,7 @@ def evaluate_night(
     return {
         "scenario": truth.scenario,
         "seed": truth.seed,
+        "lossless": is_lossless(truth.extra.get("config", {})),
         "recording": str(recording),
         "results": str(results),
         "width": truth.width,
@@ -331,17 +358,18 @@ def _eval_detection(args: argparse.Namespace) -> int:
 
     scenarios: dict[str, list[dict[str, Any]]] = {}
     for run in runs:
-        scenarios.setdefault(run["scenario"], []).append(run)
+        key = run["scenario"] + (" lossless" if run["lossless"] else "")
+        scenarios.setdefault(key, []).append(run)
     pooled = {name: pool(group) for name, group in scenarios.items()}
 
-    rows = [Row(f"{r['scenario']} s{r['seed']}", r) for r in runs]
+    rows = [Row(night_name(r), r) for r in runs]
     rows += [Row(f"{name} (pooled)", p) for name, p in pooled.items() if p["n_runs"] > 1]
     print(format_table(rows))
     if args.bins:
         for row in rows:
             print()
             print(format_bins(row.name, row.entry))
-    errors = [f"{r['scenario']} s{r['seed']}: {r['error']}" for r in runs if r["error"]]
+    errors = [f"{night_name(r)}: {r['error']}" for r in runs if r["error"]]
     for line in errors:
         print(f"warning: pipeline failed on {line}", file=sys.stderr)
     if args.json:

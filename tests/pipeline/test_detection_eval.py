@@ -3,6 +3,7 @@ on hand-made truth with known answers, the JSON document, and one small run end 
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 from pathlib import Path
@@ -19,6 +20,13 @@ from pipeline.detection_eval import (
     point_figures,
     pool,
     stereo_figures,
+)
+from pipeline.detection_eval_cli import (
+    LOSSLESS,
+    is_lossless,
+    night_name,
+    register,
+    simulation_configs,
 )
 from pipeline.detections import Detections
 from pipeline.geometry import Pose
@@ -279,3 +287,24 @@ def test_eval_detection_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture
 def test_eval_detection_needs_something_to_score(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["eval-detection"]) == 2
     assert "--scenario" in capsys.readouterr().err
+
+
+def test_a_lossless_twin_differs_from_its_night_in_the_encoding_only() -> None:
+    parser = argparse.ArgumentParser()
+    register(parser.add_subparsers())
+    args = parser.parse_args(
+        ["eval-detection", "--scenario", "hard-wind", "--seeds", "4", "5", "--lossless-twin"]
+    )
+    configs = simulation_configs(args)
+    assert [(c.seed, is_lossless(c.model_dump())) for c in configs] == [
+        (4, False),
+        (4, True),
+        (5, False),
+        (5, True),
+    ]
+    night, twin = configs[0].model_dump(), configs[1].model_dump()
+    assert night["bits_per_pixel"] == 0.16  # the scenario's camera-like bitrate
+    assert {k for k in night if night[k] != twin[k]} <= set(LOSSLESS)
+    assert night_name({"scenario": "hard-wind", "seed": 4, "lossless": True}) == (
+        "hard-wind s4 lossless"
+    )
