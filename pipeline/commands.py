@@ -214,10 +214,18 @@ def stage_bars(enabled: bool = True) -> Iterator[RunProgress]:
 def print_summary(outcome: RunOutcome) -> None:
     """A short account of a run: what was found and where the results are."""
     summary = json.loads((outcome.out_dir / artifacts.SUMMARY_JSON).read_text())
+    lines = summary_lines(summary)
+    lines.append(f"results in {outcome.out_dir.resolve()}")
+    print("\n".join(lines))
+
+
+def summary_lines(summary: dict[str, Any]) -> list[str]:
+    """The lines of `print_summary` for a run's ``summary.json`` (without the folder)."""
     counts = summary["counts"]
     t = summary["translation"]
     lines = [
         "",
+        *_recording_lines(summary),
         f"flashes accepted   cam1 {counts['flashes_cam1']}, cam2 {counts['flashes_cam2']}",
         f"delay              {summary['delay_frames']} frames "
         f"(confidence {summary['delay_confidence']:.2f})",
@@ -229,8 +237,23 @@ def print_summary(outcome: RunOutcome) -> None:
         f"time               {sum(v or 0 for v in summary['timings_s'].values()):.1f} s",
     ]
     lines += [f"warning: {w}" for w in summary["warnings"]]
-    lines.append(f"results in {outcome.out_dir.resolve()}")
-    print("\n".join(lines))
+    return lines
+
+
+def _recording_lines(summary: dict[str, Any]) -> list[str]:
+    """Frame size, rate, codecs and the encoder's bits per pixel, as far as probed."""
+    recording = summary.get("recording") or {}
+    if not recording.get("width"):
+        return []
+    parts = [f"{recording['width']}×{recording['height']}", f"{recording['fps']:g} fps"]
+    codecs = [recording.get(f"codec_cam{c}") for c in (1, 2)]
+    if any(codecs):
+        parts.append("/".join(dict.fromkeys(str(c) for c in codecs if c)))
+    text = "recording          " + ", ".join(parts)
+    bits = [recording.get(f"bits_per_pixel_cam{c}") for c in (1, 2)]
+    if all(b is not None for b in bits):
+        text += f"; {bits[0]:.3f} / {bits[1]:.3f} bit per pixel"
+    return [text]
 
 
 def _pattern_lines(summary: dict[str, Any]) -> list[str]:
