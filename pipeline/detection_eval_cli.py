@@ -156,7 +156,11 @@ def is_lossless(config: dict[str, Any]) -> bool:
 
 def night_name(run: dict[str, Any]) -> str:
     """``<scenario> s<seed>``, with `` lossless`` for a lossless twin: a table row."""
-    return f"{run['scenario']} s{run['seed']}" + (" lossless" if run.get("lossless") else "")
+    return f"{run['scenario']} s{run['seed']}{_twin_suffix(run)}"
+
+
+def _twin_suffix(run: dict[str, Any]) -> str:
+    return " lossless" if run.get("lossless") else ""
 
 
 def simulation_configs(args: argparse.Namespace) -> list[SimulationConfig]:
@@ -358,8 +362,7 @@ def _eval_detection(args: argparse.Namespace) -> int:
 
     scenarios: dict[str, list[dict[str, Any]]] = {}
     for run in runs:
-        key = run["scenario"] + (" lossless" if run["lossless"] else "")
-        scenarios.setdefault(key, []).append(run)
+        scenarios.setdefault(run["scenario"] + _twin_suffix(run), []).append(run)
     pooled = {name: pool(group) for name, group in scenarios.items()}
 
     rows = [Row(night_name(r), r) for r in runs]
