@@ -254,7 +254,9 @@ def _frame_timestamps(
 
     MP4/MOV carry a sample table: one entry per frame, exact, read without touching the
     media data; the byte range of the last entries tells whether the file is complete.
-    Other containers are demuxed packet by packet (one packet per frame for H.264/HEVC).
+    Other containers are demuxed packet by packet (one packet per frame for H.264/HEVC),
+    stamped by presentation time: Matroska leaves the decode time of the first packets
+    (the decoder's delay) unset.
     """
     entries = stream.index_entries
     if len(entries) > 0 and len(entries) == stream.frames:
@@ -262,11 +264,13 @@ def _frame_timestamps(
         _check_complete(kept, path)
         return np.array([e.timestamp for e in kept], dtype=np.int64), sum(e.size for e in kept)
     try:
-        packets = [(p.dts, p.size) for p in container.demux(stream) if p.size and p.dts is not None]
+        packets = [
+            (p.dts if p.pts is None else p.pts, p.size) for p in container.demux(stream) if p.size
+        ]
     except av.FFmpegError as exc:
         raise VideoError(f"{path.name}: cannot read packets ({_reason(exc)})") from None
-    dts = np.array([d for d, _ in packets], dtype=np.int64)
-    return np.sort(dts), sum(size for _, size in packets)
+    stamps = np.array([t for t, _ in packets if t is not None], dtype=np.int64)
+    return np.sort(stamps), sum(size for _, size in packets)
 
 
 def _check_complete(entries: Sequence[av.index.IndexEntry], path: Path) -> None:

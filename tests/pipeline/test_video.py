@@ -73,6 +73,17 @@ def test_probe_measures_the_bits_spent_per_pixel(camera: VideoInfo) -> None:
     assert sum(ch.path.stat().st_size for ch in camera.chapters) > sum(frame_bytes)
 
 
+def test_a_matroska_file_is_counted_frame_by_frame(tmp_path: Path) -> None:
+    """No sample table: packets are counted, the first ones carrying no decode time."""
+    path = _one_video(tmp_path / "night.mkv", n=12)
+    with av.open(str(path)) as container:
+        packets = [p for p in container.demux(container.streams.video[0]) if p.size]
+    assert any(p.dts is None for p in packets)  # what made the count short before
+    info = probe_video([path])
+    assert info.n_frames == 12 == len(list(iter_frames(info)))
+    assert info.chapters[0].video_bytes == sum(p.size for p in packets)
+
+
 def test_a_probe_record_without_sizes_has_no_bits_per_pixel(camera: VideoInfo) -> None:
     record = camera.to_dict()
     for chapter in record["chapters"]:
