@@ -340,18 +340,14 @@ def confirm(
         # both cameras. Points of other spots that only happen to lie close in 3D in
         # consecutive frames are not (a 3D streak is no evidence of its own), and a far
         # flash's depth noise breaks 3D links anyway.
-        length, peak = light_curve_pairs(
-            ev1.chain[rows1[points.index1]],
-            ev2.chain[rows2[points.index2]],
-            np.nan_to_num(weaker, nan=np.inf),
-        )
+        pair = _pair_groups(ev1.chain[rows1[points.index1]], ev2.chain[rows2[points.index2]])
+        length, peak = _pair_statistics(pair, np.nan_to_num(weaker, nan=np.inf))
         # A flash rises to a peak; wind-shaken leaves can agree frame after frame too,
         # but stay faint.
         rises = (length >= params.min_streak) & (peak >= params.streak_peak_snr)
         good = rises | ~(weaker < params.stereo_snr)
         if params.anchored:
             sure = ev1.confident[rows1[points.index1]] | ev2.confident[rows2[points.index2]]
-            pair = _pair_groups(ev1.chain[rows1[points.index1]], ev2.chain[rows2[points.index2]])
             anchored = np.zeros(len(points), bool)
             anchored[pair[sure]] = True
             good &= anchored[pair]
@@ -388,9 +384,15 @@ def light_curve_pairs(
     The same two light curves matched frame after frame are one flash seen by both
     cameras.
     """
-    if len(chain1) == 0:
+    return _pair_statistics(_pair_groups(chain1, chain2), weaker)
+
+
+def _pair_statistics(
+    group: NDArray[np.intp], weaker: NDArray[np.floating]
+) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """`light_curve_pairs` from each match's pair of light curves (`_pair_groups`)."""
+    if len(group) == 0:
         return np.zeros(0, np.int64), np.zeros(0)
-    group = _pair_groups(chain1, chain2)
     peak = np.full(int(group.max()) + 1, -np.inf)
     np.fmax.at(peak, group, np.asarray(weaker, np.float64))
     return np.bincount(group)[group], peak[group]
