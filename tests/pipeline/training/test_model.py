@@ -1,3 +1,5 @@
+import itertools
+
 import numpy as np
 import pytest
 import torch
@@ -35,6 +37,41 @@ def test_ring_statistics_of_a_lone_dot() -> None:
     assert (s["max_log"][0, 1:] == 0).all()
     assert s["texture"][0, 0] > 0  # the dot's edges lie within 1.5 px
     assert (s["texture"][0, 1:] == 0).all()
+
+
+def ring_statistics_reference(x: np.ndarray) -> np.ndarray:
+    """`RingStatistics` of one (3, S, S) patch, ring by ring from boolean masks."""
+    v = x.astype(np.float64) * 255.0
+    lum = v.mean(axis=0)
+    size = lum.shape[0]
+    c = size // 2
+    offsets = np.arange(size) - c
+    radius = np.hypot(offsets[:, None], offsets[None, :])
+    gradient = np.zeros_like(lum)
+    gradient[1:, :] += np.abs(np.diff(lum, axis=0))
+    gradient[:, 1:] += np.abs(np.diff(lum, axis=1))
+    bright = 1.0 / (1.0 + np.exp(-(lum - 0.5 * lum[c - 1 : c + 2, c - 1 : c + 2].mean()) / 4.0))
+    blocks: dict[str, list[float]] = {k: [] for k in ("std", "max", "texture", "bright")}
+    colour = []
+    for inner, outer in itertools.pairwise(RING_EDGES):
+        ring = (radius >= inner) & (radius < outer)
+        log_lum = np.log1p(lum[ring])
+        colour.append(np.log1p(v[:, ring]).mean(axis=1))
+        blocks["std"].append(np.sqrt(log_lum.var() + 1e-6))
+        blocks["max"].append(log_lum.max())
+        blocks["texture"].append(np.log1p(gradient[ring].mean()))
+        blocks["bright"].append(bright[ring].mean())
+    return np.concatenate([np.array(colour).T.ravel(), *map(np.array, blocks.values())])
+
+
+@pytest.mark.parametrize("size", [25, 33, 65])
+def test_ring_statistics_match_a_ring_by_ring_reference(size: int) -> None:
+    rng = np.random.default_rng(size)
+    x = rng.integers(0, 256, (4, 3, size, size)) / 255.0
+    x[:2] *= 0.05  # dark patches: small logarithms, near-flat rings
+    got = RingStatistics(size)(torch.tensor(x, dtype=torch.float32)).numpy()
+    expected = np.stack([ring_statistics_reference(patch) for patch in x])
+    np.testing.assert_allclose(got, expected, rtol=1e-4, atol=1e-5)
 
 
 def test_rings_need_a_large_enough_patch() -> None:
