@@ -61,15 +61,50 @@ class Blobs:
         return type(self)(**{f.name: getattr(self, f.name)[rows] for f in fields(self)})
 
 
-def label(idx: NDArray[np.intp], width: int) -> NDArray[np.intp]:
+class PixelIndex:
+    """Where each of a frame's sparse pixels sits in their list, for neighbour queries.
+
+    A dense image of list positions (−1: not a listed pixel), reused from frame to frame:
+    a neighbour query is then a gather instead of a binary search in the list, and only
+    the listed pixels are written and cleared again.
+
+    Parameters
+    ----------
+    shape : (int, int)
+        Rows ``H`` and columns ``W`` of the frame.
+    """
+
+    def __init__(self, shape: tuple[int, int]) -> None:
+        self.height, self.width = shape
+        self._position = np.full(self.height * self.width, -1, np.int32)
+        self._listed = np.zeros(0, np.intp)
+
+    def assign(self, idx: NDArray[np.intp]) -> None:
+        """List the pixels of flat indices `idx` (``v · W + u``), replacing the last list."""
+        self._position[self._listed] = -1
+        self._position[idx] = np.arange(len(idx), dtype=np.int32)
+        self._listed = idx
+
+    def neighbour(
+        self, rows: NDArray[np.intp], cols: NDArray[np.intp], dr: int, dc: int
+    ) -> NDArray[np.int32]:
+        """List position of pixel ``(rows + dr, cols + dc)`` (columns wrap at the 360°
+        seam), or −1 where that pixel is not listed or lies beyond the poles."""
+        r = rows + dr
+        inside = (r >= 0) & (r < self.height)
+        flat = np.where(inside, r, 0) * self.width + (cols + dc) % self.width
+        return np.where(inside, self._position[flat], -1)
+
+
+def label(pixels: PixelIndex, idx: NDArray[np.intp]) -> NDArray[np.intp]:
     """Connected-component labels of sparse pixels (8-connected, columns wrap).
 
     Parameters
     ----------
+    pixels : PixelIndex
+        The frame's index, holding `idx` (`PixelIndex.assign`).
     idx : ndarray of int, shape (N,)
         Ascending flat indices ``v · W + u``.
-    width : int
-        Image width ``W`` in pixels.
 
     Returns
     -------
@@ -78,14 +113,12 @@ def label(idx: NDArray[np.intp], width: int) -> NDArray[np.intp]:
     """
     if len(idx) == 0:
         return np.zeros(0, np.intp)
-    rows, cols = np.divmod(idx, width)
+    rows, cols = np.divmod(idx, pixels.width)
     src, dst = [], []
     for dr, dc in _FORWARD_NEIGHBOURS:
-        neighbour = (rows + dr) * width + (cols + dc) % width
-        pos = np.searchsorted(idx, neighbour)
-        pos[pos == len(idx)] = 0
-        hit = idx[pos] == neighbour
-        src.append(np.flatnonzero(hit))
+        pos = pixels.neighbour(rows, cols, dr, dc)
+        hit = np.flatnonzero(pos >= 0)
+        src.append(hit)
         dst.append(pos[hit])
     edges_from, edges_to = np.concatenate(src), np.concatenate(dst)
     graph = coo_matrix(
@@ -97,9 +130,9 @@ def label(idx: NDArray[np.intp], width: int) -> NDArray[np.intp]:
 
 
 def local_maxima(
+    pixels: PixelIndex,
     idx: NDArray[np.intp],
     values: NDArray[np.float64],
-    width: int,
     radius: int,
     candidates: NDArray[np.bool_],
 ) -> NDArray[np.bool_]:
@@ -109,31 +142,29 @@ def local_maxima(
 
     Parameters
     ----------
+    pixels : PixelIndex
+        The frame's index, holding `idx` (`PixelIndex.assign`).
     idx : ndarray of int, shape (N,)
         Ascending flat indices ``v · W + u`` (columns wrap at the 360° seam).
     values : ndarray of float, shape (N,)
         Their values.
-    width : int
-        Image width ``W``.
     radius : int
         Half side of the window, pixels.
     candidates : ndarray of bool, shape (N,)
         The pixels to test (e.g. those above a seed level); only they can be maxima.
     """
     tested = np.flatnonzero(candidates)
-    rows, cols = np.divmod(idx[tested], width)
+    rows, cols = np.divmod(idx[tested], pixels.width)
     mine = values[tested]
     peak = np.ones(len(tested), bool)
     for dr in range(-radius, radius + 1):
         for dc in range(-radius, radius + 1):
             if dr == 0 and dc == 0:
                 continue
-            neighbour = (rows + dr) * width + (cols + dc) % width
-            pos = np.minimum(np.searchsorted(idx, neighbour), len(idx) - 1)
-            present = idx[pos] == neighbour
-            other = values[pos]
+            pos = pixels.neighbour(rows, cols, dr, dc)
+            other = values[pos]  # pos −1 reads the last value: masked by `present`
             before = (dr, dc) < (0, 0)  # the neighbour comes first in raster order
-            peak &= ~(present & ((other > mine) | ((other == mine) & before)))
+            peak &= ~((pos >= 0) & ((other > mine) | ((other == mine) & before)))
     out = np.zeros(len(idx), bool)
     out[tested[peak]] = True
     return out

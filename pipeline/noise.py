@@ -62,8 +62,8 @@ class TileNoise:
         self._sum = np.zeros((2, *grid), np.int64)
         self._n = 0
         self._next = 0
-        # σ and a threshold level per pixel (`pixel_maps`), rebuilt after each update.
-        self._maps: NDArray[np.float32] | None = None
+        # σ over the pixels (`pixel_noise`), rebuilt after each update.
+        self._pixels: PixelNoise | None = None
         self._stale = True
         # Full-frame scratch images, reused from frame to frame (shape of the first).
         self._scratch: NDArray[np.float32] | None = None
@@ -110,25 +110,61 @@ class TileNoise:
         mean_negative, share_negative = self._sum / (self._n * _QUANTUM)
         return negative_side_sigma(mean_negative, share_negative).astype(np.float32)
 
-    def pixel_maps(
-        self, shape: tuple[int, int], floor: float, factor: float
-    ) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-        """``max(σ, floor)`` of each pixel's tile over an image of `shape` (rows,
-        columns), and that times `factor` (a threshold level).
+    def pixel_noise(self, shape: tuple[int, int], floor: float, factor: float) -> PixelNoise:
+        """The floored ``σ`` of each pixel's tile over an image of `shape` (rows,
+        columns), as a threshold map and a lookup (`PixelNoise`).
 
-        Both maps are rebuilt, in place, only after an `update` (every `SAMPLE_EVERY`-th
-        frame); they must not be modified.
+        Rebuilt, in place, only after an `update` (every `SAMPLE_EVERY`-th frame): the
+        returned map must not be modified.
         """
-        if self._maps is None or self._maps.shape[1:] != shape:
-            self._maps = np.empty((2, *shape), np.float32)
+        if self._pixels is None or self._pixels.level.shape != shape:
+            self._pixels = PixelNoise(shape, self._sum.shape[1:])
             self._stale = True
         if self._stale:
-            tiles = np.maximum(self.sigma(), np.float32(floor))
-            height, width = shape
-            for tile_map, out in zip((tiles, tiles * np.float32(factor)), self._maps, strict=True):
-                cv2.resize(tile_map, (width, height), dst=out, interpolation=cv2.INTER_NEAREST)
+            self._pixels.rebuild(np.maximum(self.sigma(), np.float32(floor)), factor)
             self._stale = False
-        return self._maps[0], self._maps[1]
+        return self._pixels
+
+
+class PixelNoise:
+    """Tile noise spread over the pixels of an image: a full threshold map, and ``σ``
+    looked up only at the pixels asked for (the few above the threshold).
+
+    Parameters
+    ----------
+    shape : (int, int)
+        Rows and columns of the image.
+    grid : (int, int)
+        Rows and columns of the tiles.
+    """
+
+    def __init__(self, shape: tuple[int, int], grid: tuple[int, int]) -> None:
+        height, width = shape
+        self.level = np.empty(shape, np.float32)
+        self._tiles = np.zeros(grid, np.float32)
+        # The tile of each row and column as OpenCV's nearest-neighbour resize picks it
+        # (it is separable), so a lookup agrees with the map pixel for pixel.
+        ramp = [np.arange(n, dtype=np.float32) for n in grid]
+        self._tile_row = _nearest(ramp[0][:, None], (1, height)).ravel().astype(np.intp)
+        self._tile_col = _nearest(ramp[1][None, :], (width, 1)).ravel().astype(np.intp)
+        self._width = width
+
+    def rebuild(self, tiles: NDArray[np.float32], factor: float) -> None:
+        """Take the (floored) tile ``σ`` and make the map ``factor · σ``."""
+        self._tiles[:] = tiles
+        height, width = self.level.shape
+        _nearest(tiles * np.float32(factor), (width, height), self.level)
+
+    def sigma_at(self, idx: NDArray[np.intp]) -> NDArray[np.float32]:
+        """``σ`` of the tiles holding the pixels of flat indices `idx` (``v · W + u``)."""
+        rows, cols = np.divmod(idx, self._width)
+        return self._tiles[self._tile_row[rows], self._tile_col[cols]]
+
+
+def _nearest(
+    image: NDArray[np.float32], size: tuple[int, int], out: NDArray[np.float32] | None = None
+) -> NDArray[np.float32]:
+    return np.asarray(cv2.resize(image, size, dst=out, interpolation=cv2.INTER_NEAREST))
 
 
 def negative_side_sigma(

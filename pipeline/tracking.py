@@ -71,6 +71,7 @@ from numpy.typing import NDArray
 from pipeline.background import Lanes
 from pipeline.blobs import (
     Blobs,
+    PixelIndex,
     label,
     local_maxima,
     measure,
@@ -81,7 +82,7 @@ from pipeline.blobs import (
 from pipeline.chunking import frames_read
 from pipeline.detections import Detections
 from pipeline.matched_filter import bin_image, binning, matched_filter
-from pipeline.noise import SAMPLE_EVERY, tile_grid
+from pipeline.noise import SAMPLE_EVERY, PixelNoise, tile_grid
 from pipeline.params import TrackingParams
 from pipeline.patches import extract_patches
 from pipeline.recurrence import BrightHistory
@@ -282,6 +283,7 @@ class _FrameDetector:
         )
         self._last = (-1, np.zeros(self._binned, np.uint8))  # index and binned luminance
         self._mask = np.empty(self._binned, np.bool_)
+        self._pixels = PixelIndex(self._binned)
         # The foreground and its filtered image, reused by every lane and frame: a fresh
         # pair per frame costs the kernel ~2,000 page faults a frame at 4K.
         self._foreground = np.empty(self._binned, np.float32)
@@ -306,10 +308,10 @@ class _FrameDetector:
                 if frame.index % SAMPLE_EVERY == 0 or lane.noise.frames == 0:
                     lane.noise.update(filtered)
                 if tracks and frame.index >= self._start:
-                    sigma, level = lane.noise.pixel_maps(
+                    noise = lane.noise.pixel_noise(
                         self._binned, self._params.min_noise, self._params.extent_threshold
                     )
-                    found = self._detect(filtered, sigma, level, image, lane.background.level())
+                    found = self._detect(filtered, noise, image, lane.background.level())
             lane.background.update(small)
         self._history.add(frame.index, small)
         self._last = (frame.index, small)
@@ -342,12 +344,11 @@ class _FrameDetector:
     def _detect(
         self,
         filtered: NDArray[np.float32],
-        sigma: NDArray[np.float32],
-        level: NDArray[np.float32],
+        noise: PixelNoise,
         luma: NDArray[np.uint8],
         background: NDArray[np.float32],
     ) -> tuple[Blobs, FaintPeaks]:
-        idx, snr = self._extent_pixels(filtered, sigma, level, background)
+        idx, snr = self._extent_pixels(filtered, noise, background)
         idx, snr = self._limit_pixels(idx, snr)
         labels, blob_snr, peak, (faint_idx, faint_snr) = self._seeded(idx, snr)
         area = np.bincount(labels[labels >= 0], minlength=len(blob_snr)) * self._bin**2
@@ -368,23 +369,22 @@ class _FrameDetector:
     def _extent_pixels(
         self,
         filtered: NDArray[np.float32],
-        sigma: NDArray[np.float32],
-        level: NDArray[np.float32],
+        noise: PixelNoise,
         background: NDArray[np.float32],
     ) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
         """Flat indices (ascending) and SNR of the pixels above the extent level.
 
-        `sigma` is the tile estimate (at least ``min_noise``) and `level` that times
+        `noise` holds the tile estimate (at least ``min_noise``) and that times
         ``extent_threshold``; the floor that grows with the background, ``min_noise +
         relative_noise · B``, only raises it, so it is applied to the few pixels above
         the tile level rather than to the frame.
         """
         extent = np.float32(self._params.extent_threshold)
-        np.greater(filtered, level, out=self._mask)
+        np.greater(filtered, noise.level, out=self._mask)
         idx = np.flatnonzero(self._mask)  # fast on bool, slow on a uint8 mask
         floor = background.ravel()[idx] * self._params.relative_noise + self._params.min_noise
-        noise = np.maximum(sigma.ravel()[idx].astype(np.float64), floor)
-        snr = filtered.ravel()[idx] / noise
+        sigma = np.maximum(noise.sigma_at(idx).astype(np.float64), floor)
+        snr = filtered.ravel()[idx] / sigma
         above = snr > extent
         return idx[above], snr[above]
 
@@ -420,13 +420,14 @@ class _FrameDetector:
         """
         width = self._binned[1]
         radius = max(1, math.ceil(2 * self._params.matched_sigma_px))
-        blobs = label(idx, width)
+        self._pixels.assign(idx)
+        blobs = label(self._pixels, idx)
         area = np.bincount(blobs) * self._bin**2 if len(blobs) else np.zeros(0, np.intp)
         too_large = area > self._params.max_area
         self._dropped_by_area += int(np.count_nonzero(too_large))
         threshold = self._params.threshold
         lowest = min(threshold, self._params.lit_threshold or threshold)
-        maxima = local_maxima(idx, snr, width, radius, (snr >= lowest) & ~too_large[blobs])
+        maxima = local_maxima(self._pixels, idx, snr, radius, (snr >= lowest) & ~too_large[blobs])
         peaks = maxima & (snr >= threshold)
         faint = np.flatnonzero(maxima & (snr < threshold))
         labels = split_at_peaks(idx, blobs, peaks, width)

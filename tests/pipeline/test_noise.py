@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from pipeline.noise import TileNoise, negative_side_sigma, tile_grid
 
@@ -78,21 +79,32 @@ def test_before_any_frame_sigma_is_zero_and_grids_cover_the_image() -> None:
     assert tile_grid((10, 20), 32) == (1, 1)
 
 
-def test_the_pixel_maps_floor_each_tile_and_are_rebuilt_only_after_an_update() -> None:
+def test_the_pixel_noise_floors_each_tile_and_is_rebuilt_only_after_an_update() -> None:
     noise = TileNoise((1, 2), window=4)
     left = np.zeros((4, 8), np.float32)
     left[:, :4] = np.tile([-2.0, 2.0], (4, 2))  # σ ≈ √(2π) on the left tile, 0 on the right
     noise.update(left)
-    pixels, level = noise.pixel_maps((4, 8), floor=0.5, factor=2.5)
-    assert pixels.shape == level.shape == (4, 8)
-    np.testing.assert_allclose(pixels[:, :4], noise.sigma()[0, 0])
-    np.testing.assert_allclose(pixels[:, 4:], 0.5)
-    np.testing.assert_array_equal(level, pixels * np.float32(2.5))
-    before = pixels.copy()
-    pixels[:] = -1.0  # not rebuilt until the noise changes: the same buffers come back
-    again, _ = noise.pixel_maps((4, 8), floor=0.5, factor=2.5)
-    assert np.shares_memory(again, pixels) and np.all(again == -1.0)
+    pixels = noise.pixel_noise((4, 8), floor=0.5, factor=2.5)
+    sigma = pixels.sigma_at(np.arange(32)).reshape(4, 8)
+    np.testing.assert_allclose(sigma[:, :4], noise.sigma()[0, 0])
+    np.testing.assert_allclose(sigma[:, 4:], 0.5)
+    np.testing.assert_array_equal(pixels.level, sigma * np.float32(2.5))
+    before = pixels.level.copy()
+    pixels.level[:] = -1.0  # not rebuilt until the noise changes: the same buffer comes back
+    again = noise.pixel_noise((4, 8), floor=0.5, factor=2.5)
+    assert np.shares_memory(again.level, pixels.level) and np.all(again.level == -1.0)
     noise.update(np.zeros((4, 8), np.float32))
-    rebuilt, _ = noise.pixel_maps((4, 8), floor=0.5, factor=2.5)
-    np.testing.assert_allclose(rebuilt[:, :4], noise.sigma()[0, 0])
-    assert not np.array_equal(rebuilt, before)
+    rebuilt = noise.pixel_noise((4, 8), floor=0.5, factor=2.5)
+    np.testing.assert_allclose(rebuilt.sigma_at(np.array([0, 31])), [noise.sigma()[0, 0], 0.5])
+    assert not np.array_equal(rebuilt.level, before)
+
+
+@pytest.mark.parametrize("shape", [(30, 64), (31, 67), (960, 1920)])
+def test_the_sigma_lookup_agrees_with_the_threshold_map(shape: tuple[int, int]) -> None:
+    """Tiles that do not divide the image: each pixel's σ is the tile its map pixel took."""
+    noise = TileNoise(tile_grid(shape, 32), window=2)
+    rng = np.random.default_rng(0)
+    noise.update((rng.normal(0, 1, shape) * rng.uniform(1, 3, shape[1])).astype(np.float32))
+    pixels = noise.pixel_noise(shape, floor=0.0, factor=1.0)
+    idx = np.arange(shape[0] * shape[1])
+    np.testing.assert_array_equal(pixels.sigma_at(idx), pixels.level.ravel())
