@@ -65,65 +65,81 @@ class PixelIndex:
     """Where each of a frame's sparse pixels sits in their list, for neighbour queries.
 
     A dense image of list positions (−1: not a listed pixel), reused from frame to frame:
-    a neighbour query is then a gather instead of a binary search in the list, and only
-    the listed pixels are written and cleared again.
+    a neighbour query is then one gather instead of a binary search in the list. The
+    image has a margin of `margin` pixels on every side: rows beyond the poles stay −1,
+    and the columns beyond the 360° seam repeat the listed pixels of the other edge, so
+    a neighbour is a fixed offset from a pixel, without wrapping or bounds checks.
 
     Parameters
     ----------
     shape : (int, int)
         Rows ``H`` and columns ``W`` of the frame.
+    margin : int
+        Largest neighbour offset that will be asked for, pixels (at most ``W``).
     """
 
-    def __init__(self, shape: tuple[int, int]) -> None:
+    def __init__(self, shape: tuple[int, int], margin: int) -> None:
         self.height, self.width = shape
-        self._position = np.full(self.height * self.width, -1, np.int32)
-        self._listed = np.zeros(0, np.intp)
+        if not 0 <= margin <= self.width:
+            raise ValueError(f"margin must be 0 .. {self.width} pixels, got {margin}")
+        self.margin = margin
+        self._stride = self.width + 2 * margin
+        self._position = np.full((self.height + 2 * margin) * self._stride, -1, np.int32)
+        self._written = np.zeros(0, np.intp)
+        self._at = np.zeros(0, np.intp)
 
     def assign(self, idx: NDArray[np.intp]) -> None:
         """List the pixels of flat indices `idx` (``v · W + u``), replacing the last list."""
-        self._position[self._listed] = -1
-        self._position[idx] = np.arange(len(idx), dtype=np.int32)
-        self._listed = idx
+        self._position[self._written] = -1
+        rows, cols = np.divmod(idx, self.width)
+        m = self.margin
+        self._at = (rows + m) * self._stride + cols + m
+        left, right = np.flatnonzero(cols < m), np.flatnonzero(cols >= self.width - m)
+        written = np.concatenate(
+            [self._at, self._at[left] + self.width, self._at[right] - self.width]
+        )
+        order = np.concatenate([np.arange(len(idx)), left, right]).astype(np.int32)
+        self._position[written] = order
+        self._written = written
 
-    def neighbour(
-        self, rows: NDArray[np.intp], cols: NDArray[np.intp], dr: int, dc: int
-    ) -> NDArray[np.int32]:
-        """List position of pixel ``(rows + dr, cols + dc)`` (columns wrap at the 360°
-        seam), or −1 where that pixel is not listed or lies beyond the poles."""
-        r = rows + dr
-        inside = (r >= 0) & (r < self.height)
-        flat = np.where(inside, r, 0) * self.width + (cols + dc) % self.width
-        return np.where(inside, self._position[flat], -1)
+    def __len__(self) -> int:
+        return len(self._at)
+
+    def neighbour(self, dr: int, dc: int, of: NDArray[np.intp] | None = None) -> NDArray[np.int32]:
+        """List position of the pixel ``(dr, dc)`` away (rows, columns; at most `margin`)
+        from each listed pixel, or from those at list positions `of`; −1 where that pixel
+        is not listed or lies beyond the poles."""
+        if max(abs(dr), abs(dc)) > self.margin:
+            raise ValueError(f"offset ({dr}, {dc}) exceeds the margin of {self.margin} pixels")
+        at = self._at if of is None else self._at[of]
+        return self._position[at + (dr * self._stride + dc)]
 
 
-def label(pixels: PixelIndex, idx: NDArray[np.intp]) -> NDArray[np.intp]:
-    """Connected-component labels of sparse pixels (8-connected, columns wrap).
+def label(pixels: PixelIndex) -> NDArray[np.intp]:
+    """Connected-component labels of a frame's listed pixels (8-connected, columns wrap).
 
     Parameters
     ----------
     pixels : PixelIndex
-        The frame's index, holding `idx` (`PixelIndex.assign`).
-    idx : ndarray of int, shape (N,)
-        Ascending flat indices ``v · W + u``.
+        The frame's pixels (`PixelIndex.assign`, ascending flat indices), margin ≥ 1.
 
     Returns
     -------
     ndarray of int, shape (N,)
-        Labels ``0 .. n − 1``, numbered in raster order of each component's first pixel.
+        Labels ``0 .. n − 1`` of the listed pixels, numbered in raster order of each
+        component's first pixel.
     """
-    if len(idx) == 0:
+    n = len(pixels)
+    if n == 0:
         return np.zeros(0, np.intp)
-    rows, cols = np.divmod(idx, pixels.width)
     src, dst = [], []
     for dr, dc in _FORWARD_NEIGHBOURS:
-        pos = pixels.neighbour(rows, cols, dr, dc)
+        pos = pixels.neighbour(dr, dc)
         hit = np.flatnonzero(pos >= 0)
         src.append(hit)
         dst.append(pos[hit])
     edges_from, edges_to = np.concatenate(src), np.concatenate(dst)
-    graph = coo_matrix(
-        (np.ones(len(edges_from), np.int8), (edges_from, edges_to)), shape=(len(idx), len(idx))
-    )
+    graph = coo_matrix((np.ones(len(edges_from), np.int8), (edges_from, edges_to)), shape=(n, n))
     _, labels = connected_components(graph, directed=False)
     # connected_components numbers components by their lowest node: raster order here.
     return labels.astype(np.intp)
@@ -131,7 +147,6 @@ def label(pixels: PixelIndex, idx: NDArray[np.intp]) -> NDArray[np.intp]:
 
 def local_maxima(
     pixels: PixelIndex,
-    idx: NDArray[np.intp],
     values: NDArray[np.float64],
     radius: int,
     candidates: NDArray[np.bool_],
@@ -143,9 +158,8 @@ def local_maxima(
     Parameters
     ----------
     pixels : PixelIndex
-        The frame's index, holding `idx` (`PixelIndex.assign`).
-    idx : ndarray of int, shape (N,)
-        Ascending flat indices ``v · W + u`` (columns wrap at the 360° seam).
+        The frame's pixels (`PixelIndex.assign`, ascending flat indices), margin ≥
+        `radius`.
     values : ndarray of float, shape (N,)
         Their values.
     radius : int
@@ -154,18 +168,17 @@ def local_maxima(
         The pixels to test (e.g. those above a seed level); only they can be maxima.
     """
     tested = np.flatnonzero(candidates)
-    rows, cols = np.divmod(idx[tested], pixels.width)
     mine = values[tested]
     peak = np.ones(len(tested), bool)
     for dr in range(-radius, radius + 1):
         for dc in range(-radius, radius + 1):
             if dr == 0 and dc == 0:
                 continue
-            pos = pixels.neighbour(rows, cols, dr, dc)
-            other = values[pos]  # pos −1 reads the last value: masked by `present`
+            pos = pixels.neighbour(dr, dc, tested)
+            other = values[pos]  # pos −1 reads the last value: masked by `pos >= 0`
             before = (dr, dc) < (0, 0)  # the neighbour comes first in raster order
             peak &= ~((pos >= 0) & ((other > mine) | ((other == mine) & before)))
-    out = np.zeros(len(idx), bool)
+    out = np.zeros(len(values), bool)
     out[tested[peak]] = True
     return out
 

@@ -230,12 +230,18 @@ class FlashClassifier:
         return out
 
     def _run(self, batch: np.ndarray) -> np.ndarray:
-        x = batch.astype(np.float32)
+        # One pass converts into the network's channel order and layout, then the
+        # multiply-add runs in place (no temporaries, no copy inside onnxruntime).
         if self.card.channel_order == "BGR":
-            x = x[..., ::-1]
-        x = x * self._gain + self._offset
+            batch = batch[..., ::-1]
+        gain, offset = self._gain, self._offset
         if self.card.layout == "NCHW":
-            x = x.transpose(0, 3, 1, 2)
+            batch = batch.transpose(0, 3, 1, 2)
+            gain, offset = gain[:, None, None], offset[:, None, None]
+        x = np.empty(batch.shape, np.float32)
+        np.copyto(x, batch)
+        x *= gain
+        x += offset
         (y,) = self.session.run([self.card.output_name], {self.card.input_name: x})
         return _flash_probability(np.asarray(y), self.card)
 

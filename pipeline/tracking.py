@@ -283,7 +283,8 @@ class _FrameDetector:
         )
         self._last = (-1, np.zeros(self._binned, np.uint8))  # index and binned luminance
         self._mask = np.empty(self._binned, np.bool_)
-        self._pixels = PixelIndex(self._binned)
+        radius = max(1, math.ceil(2 * params.matched_sigma_px))  # of a local maximum
+        self._pixels = PixelIndex(self._binned, min(radius, self._binned[1]))
         # The foreground and its filtered image, reused by every lane and frame: a fresh
         # pair per frame costs the kernel ~2,000 page faults a frame at 4K.
         self._foreground = np.empty(self._binned, np.float32)
@@ -419,15 +420,16 @@ class _FrameDetector:
         around it, so the candidates are the same with or without faint peaks).
         """
         width = self._binned[1]
-        radius = max(1, math.ceil(2 * self._params.matched_sigma_px))
         self._pixels.assign(idx)
-        blobs = label(self._pixels, idx)
+        blobs = label(self._pixels)
         area = np.bincount(blobs) * self._bin**2 if len(blobs) else np.zeros(0, np.intp)
         too_large = area > self._params.max_area
         self._dropped_by_area += int(np.count_nonzero(too_large))
         threshold = self._params.threshold
         lowest = min(threshold, self._params.lit_threshold or threshold)
-        maxima = local_maxima(self._pixels, idx, snr, radius, (snr >= lowest) & ~too_large[blobs])
+        maxima = local_maxima(
+            self._pixels, snr, self._pixels.margin, (snr >= lowest) & ~too_large[blobs]
+        )
         peaks = maxima & (snr >= threshold)
         faint = np.flatnonzero(maxima & (snr < threshold))
         labels = split_at_peaks(idx, blobs, peaks, width)
