@@ -61,7 +61,7 @@ class RingStatistics(nn.Module):
         self.register_buffer("ring_mean", (rings / sizes[:, None]).T.contiguous())
         self.register_buffer("ring_onehot", rings)
         self.register_buffer("ring_order", torch.argsort(rings.argmax(dim=0), stable=True))
-        self.ring_sizes = tuple(int(n) for n in sizes)
+        self.ring_sizes = [int(n) for n in sizes]
         self.n_features = len(rings) * self.per_ring
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
