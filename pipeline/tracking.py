@@ -43,16 +43,18 @@ frames before ``a`` instead (``L`` for the mean, ``L + 2`` for its noise window)
 Cost per frame
 --------------
 One full-resolution pass (the binning, at 4K); then, on the binned image, the
-foreground, the filter, the noise tile means (every other frame), the noise map, the
-threshold comparison and the EWMA update (OpenCV, vectorised). Everything after that
-(labelling as a sparse graph of the candidate pixels with `scipy.sparse.csgraph`, local
-maxima, sub-pixel peaks) touches the candidate pixels only. Candidates are classified
+foreground, the filter, the noise tile means (every other frame, every other row), the
+threshold map, the threshold comparison and the EWMA update (OpenCV, vectorised).
+Everything after that touches the candidate pixels only: their noise ``σ`` looked up by
+tile, labelling as a sparse graph with `scipy.sparse.csgraph`, local maxima and
+sub-pixel peaks, with neighbours found through a reused image of the pixels' list
+positions (`pipeline.blobs.PixelIndex`). Candidates are classified
 in batches of `CLASSIFY_BATCH` patches gathered across frames. OpenCV runs on one
 thread here: the decoder's frame threads keep the cores busy. The full-frame images of
 the loop (binned luminance, foreground, filtered foreground, noise scratch and maps) are
 allocated once and reused: fresh ones cost the kernel ~1,700 page faults a frame at 4K.
-At 3840 × 1920 with 39 candidates per frame: 0.64–0.69 × decode-only throughput with the
-classifier and the recurrence history (`bench/bench_tracking.py`).
+At 3840 × 1920 with 39 candidates per frame: 0.69 × decode-only throughput (CPU 0.72)
+with the classifier and the recurrence history (`bench/bench_tracking.py`).
 """
 
 from __future__ import annotations

@@ -1,0 +1,74 @@
+"""Sparse-pixel blobs: the neighbour index, labelling and local maxima (pipeline.blobs)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipeline.blobs import PixelIndex, label, local_maxima
+
+
+def index_of(mask: np.ndarray, margin: int) -> tuple[PixelIndex, np.ndarray]:
+    idx = np.flatnonzero(mask)
+    pixels = PixelIndex(mask.shape, margin)
+    pixels.assign(idx)
+    return pixels, idx
+
+
+def test_neighbours_wrap_at_the_seam_and_stop_at_the_poles() -> None:
+    mask = np.zeros((4, 6), bool)
+    mask[0, 0] = mask[0, 5] = mask[1, 4] = mask[3, 1] = True
+    pixels, idx = index_of(mask, margin=2)
+    at = {int(i): n for n, i in enumerate(idx)}  # flat index -> list position
+    assert pixels.neighbour(0, -1)[at[0]] == at[5]  # (0, 0) sees (0, 5) across the seam
+    assert pixels.neighbour(0, 1)[at[5]] == at[0]
+    assert pixels.neighbour(1, -2)[at[0]] == at[6 + 4]  # two columns back, one row down
+    assert pixels.neighbour(-1, 0)[at[0]] == -1  # beyond the top pole
+    assert pixels.neighbour(1, 0)[at[3 * 6 + 1]] == -1  # beyond the bottom pole
+    assert pixels.neighbour(0, 1, of=np.array([at[3 * 6 + 1]]))[0] == -1  # nothing there
+
+
+def test_a_new_list_clears_the_last_one() -> None:
+    pixels = PixelIndex((3, 5), margin=1)
+    pixels.assign(np.array([0, 4, 7]))  # (0, 0), (0, 4) and (1, 2)
+    pixels.assign(np.array([8]))  # (1, 3)
+    assert len(pixels) == 1
+    assert pixels.neighbour(0, -1)[0] == -1  # (1, 2) is no longer listed
+    pixels.assign(np.array([2, 3]))
+    np.testing.assert_array_equal(pixels.neighbour(0, 1), [1, -1])
+
+
+def test_offsets_beyond_the_margin_are_refused() -> None:
+    pixels = PixelIndex((4, 8), margin=1)
+    pixels.assign(np.array([9]))
+    with pytest.raises(ValueError, match="margin"):
+        pixels.neighbour(2, 0)
+    with pytest.raises(ValueError, match="margin"):
+        PixelIndex((4, 8), margin=9)
+
+
+def test_labels_join_across_the_seam_in_raster_order() -> None:
+    mask = np.zeros((5, 8), bool)
+    mask[1, 7] = mask[2, 0] = True  # diagonal neighbours across the seam
+    mask[3, 3:5] = True
+    mask[0, 2] = True
+    pixels, idx = index_of(mask, margin=1)
+    labels = label(pixels)
+    by_pixel = dict(zip(idx.tolist(), labels.tolist(), strict=True))
+    assert by_pixel[1 * 8 + 7] == by_pixel[2 * 8 + 0]
+    assert by_pixel[3 * 8 + 3] == by_pixel[3 * 8 + 4]
+    assert len(set(labels.tolist())) == 3
+    assert by_pixel[2] == 0  # the component with the first pixel in raster order
+
+
+def test_local_maxima_within_the_radius_ties_to_the_first_pixel() -> None:
+    image = np.zeros((5, 10))
+    image[2, 4], image[2, 6] = 5.0, 7.0  # two apart: one maximum within radius 2
+    image[0, 9], image[0, 0] = 4.0, 4.0  # a plateau across the seam: one maximum, on its left
+    mask = image > 0
+    pixels, idx = index_of(mask, margin=2)
+    values = image.ravel()[idx]
+    peaks = idx[local_maxima(pixels, values, 2, np.ones(len(idx), bool))]
+    np.testing.assert_array_equal(peaks, [9, 2 * 10 + 6])
+    only_first = np.asarray(idx == 2 * 10 + 4)  # only tested pixels can be maxima
+    assert not local_maxima(pixels, values, 2, only_first).any()
