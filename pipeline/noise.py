@@ -11,9 +11,10 @@ share of negative pixels is ``p = Φ(−t)`` with ``t = μ/σ``, and
 ``E[max(−F, 0)] = σ (φ(t) − t Φ(−t))``, which is ``σ / √(2π)`` at ``μ = 0``. Both are
 measured on the negative side: the tile means of ``max(−F, 0)`` and of ``F < 0`` of
 every `SAMPLE_EVERY`-th frame (on every `SAMPLE_ROWS`-th row) are averaged over a
-window, and ``σ`` follows in closed form (`negative_side_sigma`). A flash changes ``p`` only by the pixels it covers,
-however bright it is. Taking ``μ = 0`` made the estimate 1.9 times the true deviation
-in the median tile of a simulated dusk (hard-all), 3.6 times in one tile of ten.
+window, and ``σ`` follows in closed form (`negative_side_sigma`). A flash changes ``p``
+only by the pixels it covers, however bright it is. Taking ``μ = 0`` made the estimate
+1.9 times the true deviation in the median tile of a simulated dusk (hard-all), 3.6
+times in one tile of ten.
 
 The running sum is kept in integers (tile means quantised to 1/1024 grey level), so
 the estimate does not depend on how many frames the window has slid over: a frame
