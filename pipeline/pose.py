@@ -55,7 +55,7 @@ _MAD_TO_SIGMA = 1.4826
 _GRADUATED_SCALES_DEG = (10.0, 3.0, 1.0)
 #: Evaluation budget of each graduated step: a start in the wrong basin stops early.
 _START_NFEV = 100
-#: Central-difference step of `rotation_standard_error` (radians, ~0.0006°): small
+#: Central-difference step of `pose_covariance` (radians, ~0.0006°): small
 #: against good fits' residuals (~0.03°) so the gaps' kink at zero barely matters.
 _JACOBIAN_STEP_RAD = 1e-5
 
@@ -105,8 +105,11 @@ class PoseEstimate:
         Inlier threshold used, in degrees.
     stats : dict
         ``median / mean / p90`` of the inliers' residuals, as ``*_deg`` (degrees) and
-        ``*_gap`` (separation units), and ``rotation_se_deg``
-        (`rotation_standard_error`).
+        ``*_gap`` (separation units), and the standard errors of the rotation and of
+        the baseline's direction, ``rotation_se_deg`` and ``translation_se_deg``
+        (`standard_errors_deg`).
+    covariance : ndarray of float64, shape (6, 6)
+        Of the rotation vector and the unit translation (`pose_covariance`).
     warnings : tuple of str
         Reasons to distrust the pose (few or a low fraction of inliers).
     """
@@ -119,6 +122,7 @@ class PoseEstimate:
     n_inliers: int
     threshold_deg: float
     stats: dict[str, float]
+    covariance: FloatArray
     warnings: tuple[str, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
@@ -291,13 +295,18 @@ def _local_parameters(start: Pose) -> Callable[[FloatArray], Pose]:
     """Poses near ``start`` as a function of 5 parameters: a rotation vector applied to its
     rotation, and a 2-vector in the plane orthogonal to its translation."""
     r0, t0 = start.rotation, start.translation
-    # Orthonormal basis of the plane orthogonal to t0: the translation's two freedoms.
-    basis = np.linalg.svd(t0[None, :])[2][1:].T
+    basis = _translation_basis(t0)
 
     def pose_of(p: FloatArray) -> Pose:
         return Pose(Rotation.from_rotvec(p[:3]).as_matrix() @ r0, t0 + basis @ p[3:])
 
     return pose_of
+
+
+def _translation_basis(translation: FloatArray) -> FloatArray:
+    """Orthonormal basis (3 × 2) of the plane orthogonal to a unit translation: its two
+    freedoms as a direction."""
+    return np.asarray(np.linalg.svd(translation[None, :])[2][1:].T)
 
 
 def _gaps_near(
@@ -311,14 +320,16 @@ def _gaps_near(
     return gaps
 
 
-def rotation_standard_error(bearing1: FloatArray, bearing2: FloatArray, pose: Pose) -> float:
-    """Standard error of the pose's rotation about its worst-determined axis, in degrees.
+def pose_covariance(bearing1: FloatArray, bearing2: FloatArray, pose: Pose) -> FloatArray:
+    """Covariance of a fitted pose, from the pairs it was fitted on.
 
-    The covariance of the 5 pose parameters is ``s² (JᵀJ)⁻¹``, with ``J`` the Jacobian of
-    the pairs' depth-normalised gaps (central differences) and ``s²`` their residual
-    variance (``N − 5`` degrees of freedom). Pairs that leave a rotation unconstrained
-    (few, or all in nearly one plane through the baseline) give a large error however
-    small their residuals: a pose can fit such pairs well and still be wrong.
+    The covariance of the 5 local parameters (a rotation vector applied to the pose's
+    rotation, and the translation's two freedoms as a direction) is ``s² (JᵀJ)⁻¹``, with
+    ``J`` the Jacobian of the pairs' depth-normalised gaps (central differences) and
+    ``s²`` their residual variance (``N − 5`` degrees of freedom). Pairs that leave the
+    pose unconstrained (few, or all in nearly one plane through the baseline) give a
+    large covariance however small their residuals: a pose can fit such pairs well and
+    still be wrong.
 
     Parameters
     ----------
@@ -329,21 +340,69 @@ def rotation_standard_error(bearing1: FloatArray, bearing2: FloatArray, pose: Po
 
     Returns
     -------
-    float
-        Degrees; ``inf`` with 5 pairs or fewer.
+    ndarray of float64, shape (6, 6)
+        Over ``(ω, t̂)``: the rotation vector ``ω`` (radians) of a small rotation applied
+        before ``R`` (``R' = exp([ω]×) R``) and the unit translation ``t̂`` (world
+        frame; no variance along itself). ``inf`` everywhere with 5 pairs or fewer.
     """
     n = len(bearing1)
     if n <= 5:
-        return float("inf")
+        return np.full((6, 6), np.inf)
     residuals = _gaps_near(bearing1, bearing2, _local_parameters(pose))
     steps = _JACOBIAN_STEP_RAD * np.eye(5)
     jacobian = np.column_stack(
         [(residuals(step) - residuals(-step)) / (2 * _JACOBIAN_STEP_RAD) for step in steps]
     )
     variance = float(np.sum(residuals(np.zeros(5)) ** 2)) / (n - 5)
-    covariance = variance * np.linalg.pinv(jacobian.T @ jacobian)
-    worst = float(np.linalg.eigvalsh(covariance[:3, :3]).max())
-    return float(np.degrees(np.sqrt(max(worst, 0.0))))
+    local = variance * np.linalg.pinv(jacobian.T @ jacobian)
+    to_global = np.zeros((6, 5))
+    to_global[:3, :3] = np.eye(3)
+    to_global[3:, 3:] = _translation_basis(pose.translation)
+    return np.asarray(to_global @ local @ to_global.T)
+
+
+def standard_errors_deg(covariance: FloatArray) -> tuple[float, float]:
+    """Standard errors of a pose (`pose_covariance`) about its worst-determined axes:
+    of the rotation, and of the baseline's direction, in degrees."""
+    rotation, translation = covariance[:3, :3], covariance[3:, 3:]
+    if not (np.isfinite(rotation).all() and np.isfinite(translation).all()):
+        return float("inf"), float("inf")
+    return tuple(  # type: ignore[return-value]
+        float(np.degrees(np.sqrt(max(float(np.linalg.eigvalsh(c).max()), 0.0))))
+        for c in (rotation, translation)
+    )
+
+
+def worst_axis_covariance(covariance: FloatArray, translation: FloatArray) -> FloatArray:
+    """A pose covariance (`pose_covariance`) with each part spread evenly at its worst
+    axis: the rotation by its largest variance about every axis, the baseline's direction
+    by its largest variance in every direction across it, no correlation between them.
+
+    Fitted poses are off by more than their covariance says (their pairs' position errors
+    have heavy tails; "Why wind poses are 0.1–0.7° off" in docs/detection.md), so the
+    uncertainty a pose gives its 3D points takes the worst axis of each part, not its
+    exact shape.
+
+    Parameters
+    ----------
+    covariance : ndarray of float64, shape (6, 6)
+        Over the rotation vector (radians) and the unit translation.
+    translation : ndarray of float64, shape (3,)
+        The pose's unit translation.
+
+    Returns
+    -------
+    ndarray of float64, shape (6, 6)
+        ``σ_R² I₃ ⊕ σ_t² (I₃ − t̂ t̂ᵀ)``; ``inf`` everywhere if `covariance` is not finite.
+    """
+    if not np.isfinite(covariance).all():
+        return np.full((6, 6), np.inf)
+    spread = np.zeros((6, 6))
+    rotation_var = max(float(np.linalg.eigvalsh(covariance[:3, :3]).max()), 0.0)
+    translation_var = max(float(np.linalg.eigvalsh(covariance[3:, 3:]).max()), 0.0)
+    spread[:3, :3] = rotation_var * np.eye(3)
+    spread[3:, 3:] = translation_var * (np.eye(3) - np.outer(translation, translation))
+    return spread
 
 
 def _threshold(residuals: FloatArray, params: PoseParams) -> float:
@@ -394,10 +453,13 @@ def _summarise(
     residuals = np.degrees(normalised_gap(rays))
     inliers = _inlier_mask(rays, threshold)
     n, n_in = len(b1), int(inliers.sum())
+    covariance = pose_covariance(b1[inliers], b2[inliers], pose)
+    rotation_se, translation_se = standard_errors_deg(covariance)
     stats = {
         **_describe(residuals[inliers], "deg"),
         **_describe(rays.gap[inliers], "gap"),
-        "rotation_se_deg": rotation_standard_error(b1[inliers], b2[inliers], pose),
+        "rotation_se_deg": rotation_se,
+        "translation_se_deg": translation_se,
     }
     warnings = []
     if n_in < params.min_inlier_fraction * n:
@@ -414,6 +476,7 @@ def _summarise(
         n_inliers=n_in,
         threshold_deg=float(np.degrees(threshold)),
         stats=stats,
+        covariance=covariance,
         warnings=tuple(warnings),
     )
 

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from pipeline.clock import NightClock
 from pipeline.detections import read_csv, write_csv
@@ -52,6 +52,19 @@ class Calibration:
     height: int
     #: Standard error of the rotation (degrees; 0 where unknown), from the pose fit.
     rotation_se_deg: float = 0.0
+    #: Covariance (6 × 6) of the rotation vector and the unit translation
+    #: (`pipeline.pose.pose_covariance`); None where unknown.
+    covariance: NDArray[np.float64] | None = None
+
+    @property
+    def pose_covariance(self) -> NDArray[np.float64]:
+        """The pose's covariance; for a calibration of an earlier release, which kept
+        only the rotation's standard error, that error on every rotation axis."""
+        if self.covariance is not None:
+            return self.covariance
+        covariance = np.zeros((6, 6))
+        covariance[:3, :3] = np.eye(3) * np.radians(self.rotation_se_deg) ** 2
+        return covariance
 
 
 def write_calibration(path: Path, calibration: Calibration, extra: dict[str, Any]) -> None:
@@ -67,9 +80,19 @@ def write_calibration(path: Path, calibration: Calibration, extra: dict[str, Any
             "fps": float(calibration.fps),
             "width": int(calibration.width),
             "height": int(calibration.height),
+            **(
+                {}
+                if calibration.covariance is None
+                else {"pose_covariance": _finite_or_none(calibration.covariance)}
+            ),
             **extra,
         },
     )
+
+
+def _finite_or_none(matrix: NDArray[np.float64]) -> list[list[float | None]]:
+    """Nested lists for JSON, non-finite entries (an undetermined pose) as null."""
+    return [[float(v) if np.isfinite(v) else None for v in row] for row in matrix]
 
 
 def read_calibration(path: Path) -> Calibration:
@@ -83,6 +106,9 @@ def read_calibration(path: Path) -> Calibration:
         width=int(data["width"]),
         height=int(data["height"]),
         rotation_se_deg=float(data.get("residuals", {}).get("rotation_se_deg") or 0.0),
+        covariance=None
+        if data.get("pose_covariance") is None
+        else np.array(data["pose_covariance"], dtype=np.float64),
     )
 
 

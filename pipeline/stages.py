@@ -9,7 +9,6 @@ these call; nothing here knows whether it runs in the CLI or in a Celery worker.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable, Mapping
 from dataclasses import asdict
 from functools import lru_cache
@@ -45,7 +44,7 @@ from pipeline.evidence_model import acceptance_counts, evidence_model, weigh
 from pipeline.graph import StageContext, StageResult, earlier_units, read_record
 from pipeline.jsonio import read_json, write_json
 from pipeline.params import AcceptanceParams, ClassifierParams, validate_separation
-from pipeline.pose import calibrate_pose
+from pipeline.pose import calibrate_pose, worst_axis_covariance
 from pipeline.probe import LOW_BITS_PER_PIXEL, StereoProbe
 from pipeline.results import (
     Calibration,
@@ -331,6 +330,7 @@ def pose(ctx: StageContext) -> StageResult:
         fps=probe.fps,
         width=probe.width,
         height=probe.height,
+        covariance=estimate.covariance,
     )
     write_calibration(
         ctx.path(CALIBRATION_JSON),
@@ -433,7 +433,9 @@ def triangulate(ctx: StageContext) -> StageResult:
         calibration.width,
         ctx.separation_m,
         ctx.params.triangulation,
-        rotation_sd_rad=math.radians(calibration.rotation_se_deg),
+        pose_covariance=worst_axis_covariance(
+            calibration.pose_covariance, calibration.pose.translation
+        ),
     )
     save_points(ctx.path(POINTS_NPZ), points)
     metrics = {

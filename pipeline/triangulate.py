@@ -19,6 +19,7 @@ from typing import Self
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import linear_sum_assignment
+from scipy.spatial.transform import Rotation
 
 from pipeline.detections import Detections
 from pipeline.geometry import Pose, check_width, closest_approach, pixel_to_bearing
@@ -85,7 +86,7 @@ def triangulate(
     width: int,
     separation_m: float,
     params: TriangulationParams = TriangulationParams(),  # noqa: B008 - frozen default
-    rotation_sd_rad: float = 0.0,
+    pose_covariance: FloatArray | None = None,
 ) -> Points3D:
     """Match flashes between the cameras frame by frame and triangulate them.
 
@@ -105,9 +106,10 @@ def triangulate(
         Matching gates, maximum range, minimum parallax and the detections'
         localisation error (``localisation_px``: ``σ = localisation_px / √SNR`` pixels;
         rows without an SNR count as `UNKNOWN_SNR`).
-    rotation_sd_rad : float
-        Standard error of the pose's rotation, radians: it turns camera 2's bearings, so
-        it adds in quadrature to their errors in ``range_sd_m``.
+    pose_covariance : ndarray of float64, shape (6, 6), optional
+        Of the pose's rotation vector and unit translation
+        (`pipeline.pose.pose_covariance`): the pose's own error adds to the detections'
+        in ``range_sd_m``.
 
     Returns
     -------
@@ -155,7 +157,8 @@ def triangulate(
         pixel_to_bearing(det2.x[j2], det2.y[j2], width),
         pose,
         localisation_rad(det1.snr[j1], width, params.localisation_px),
-        np.hypot(localisation_rad(det2.snr[j2], width, params.localisation_px), rotation_sd_rad),
+        localisation_rad(det2.snr[j2], width, params.localisation_px),
+        pose_covariance,
     )
     return Points3D(
         xyz=rays.midpoint[chosen] * separation_m,
@@ -186,6 +189,7 @@ def range_sd(
     pose: Pose,
     sd1: FloatArray,
     sd2: FloatArray,
+    pose_covariance: FloatArray | None = None,
 ) -> FloatArray:
     """First-order standard deviation of a triangulated point's distance from camera 1.
 
@@ -193,7 +197,9 @@ def range_sd(
     derivative of the distance of the rays' closest-approach midpoint along two
     directions orthogonal to each bearing (central differences) gives the variance
     ``Σ (∂r/∂θ)² σ²``. Far points, and points near the baseline's axis, are uncertain:
-    ``σ_r ≈ r² √(σ1² + σ2²) / (B sin β)``.
+    ``σ_r ≈ r² √(σ1² + σ2²) / (B sin β)``. The pose's own error, when its covariance is
+    given, adds ``gᵀ C g`` with ``g`` the derivative of the distance by the pose's six
+    parameters: every point of a recording shares it, so it moves them together.
 
     Parameters
     ----------
@@ -203,6 +209,10 @@ def range_sd(
         Relative pose (unit translation).
     sd1, sd2 : ndarray, shape (N,)
         Angular errors (1 σ, radians) of the bearings.
+    pose_covariance : ndarray, shape (6, 6), optional
+        Of the rotation vector (radians, applied before ``R``) and the unit translation
+        (`pipeline.pose.pose_covariance`); non-finite entries (an undetermined pose)
+        make every deviation infinite.
 
     Returns
     -------
@@ -210,8 +220,8 @@ def range_sd(
         Standard deviation of the distance, in units of the camera separation.
     """
 
-    def distance(b1: FloatArray, b2: FloatArray) -> FloatArray:
-        return np.linalg.norm(closest_approach(b1, b2, pose).midpoint, axis=-1)
+    def distance(b1: FloatArray, b2: FloatArray, at: Pose = pose) -> FloatArray:
+        return np.linalg.norm(closest_approach(b1, b2, at).midpoint, axis=-1)
 
     step = 1e-6  # radians: central differences
     variance = np.zeros(len(bearing1))
@@ -221,7 +231,29 @@ def range_sd(
             pairs = [(t, bearing2) if camera == 0 else (bearing1, t) for t in turned]
             ahead, behind = (distance(*pair) for pair in pairs)
             variance += ((ahead - behind) / (2 * step) * sd) ** 2
+    if pose_covariance is not None:
+        if not np.isfinite(pose_covariance).all():
+            return np.full(len(bearing1), np.inf)
+        gradient = np.column_stack(
+            [
+                (
+                    distance(bearing1, bearing2, _nudged(pose, i, step))
+                    - distance(bearing1, bearing2, _nudged(pose, i, -step))
+                )
+                / (2 * step)
+                for i in range(6)
+            ]
+        )
+        variance += np.einsum("ni,ij,nj->n", gradient, pose_covariance, gradient)
     return np.sqrt(variance)
+
+
+def _nudged(pose: Pose, parameter: int, step: float) -> Pose:
+    """`pose` with one of its six parameters (`range_sd`) moved by `step`."""
+    if parameter < 3:
+        turn = Rotation.from_rotvec(step * np.eye(3)[parameter]).as_matrix()
+        return Pose(turn @ pose.rotation, pose.translation)
+    return Pose(pose.rotation, pose.translation + step * np.eye(3)[parameter - 3])
 
 
 def _tangents(bearing: FloatArray) -> tuple[FloatArray, FloatArray]:

@@ -27,7 +27,7 @@ from pipeline.evaluate import (
     evaluate_run,
     nearest_same_frame,
 )
-from pipeline.geometry import rotation_angle
+from pipeline.geometry import angle_between, rotation_angle
 from pipeline.params import PatternParams
 from pipeline.patterns import night_patterns
 from pipeline.results import FLASH_PATTERN_COLUMNS, read_flash_patterns, read_trajectories
@@ -174,6 +174,17 @@ def test_outputs_follow_the_contract(simulated, tmp_path) -> None:
     error = np.degrees(rotation_angle(rotation, recording.truth.pose.rotation))
     assert 0 < standard_error < 0.1 and error < 4 * standard_error, (error, standard_error)
     assert np.linalg.norm(calibration["translation"]) == pytest.approx(1.0)
+    # So is the baseline's direction's, and the covariance both come from is written out.
+    translation_se = calibration["residuals"]["translation_se_deg"]
+    translation_error = np.degrees(
+        angle_between(calibration["translation"], recording.truth.pose.translation)
+    )
+    assert 0 < translation_se < 0.3 and translation_error < 4 * translation_se
+    covariance = np.array(calibration["pose_covariance"])
+    assert covariance.shape == (6, 6) and np.allclose(covariance, covariance.T)
+    assert np.degrees(np.sqrt(np.linalg.eigvalsh(covariance[3:, 3:]).max())) == pytest.approx(
+        translation_se
+    )
     assert calibration["width"] == 2 * calibration["height"] == 640
     assert calibration["camera_height_m"] == 1.2
     table = read_trajectories(out / "trajectories.csv")

@@ -13,6 +13,8 @@ from pipeline.pose import (
     essential_matrix_pose,
     estimate_pose,
     fit_warnings,
+    standard_errors_deg,
+    worst_axis_covariance,
 )
 
 SEPARATION = 1.5
@@ -261,24 +263,46 @@ def horizon_scene(
     return pose, direction, in_camera2 / np.linalg.norm(in_camera2, axis=1, keepdims=True)
 
 
-def test_rotation_standard_error_predicts_the_error_and_flags_weak_geometry() -> None:
+def test_standard_errors_predict_the_errors_and_flag_weak_geometry() -> None:
     rng = np.random.default_rng(9)
     errors, standard_errors = [], []
     for _ in range(40):
         truth, b1, b2 = horizon_scene(rng, 20, elevation_deg=2.0)
         est = estimate_pose(CalibrationPairs(np.arange(20), jitter(rng, b1, 0.05), b2))
-        errors.append(errors_deg(est.pose, truth)[0])
-        standard_errors.append(est.stats["rotation_se_deg"])
-    # The rotation error's root mean square is about the predicted standard error (the
-    # worst axis' error bounds the total from above, the other two add to it).
-    ratio = np.sqrt(np.mean(np.square(errors))) / np.median(standard_errors)
-    assert 0.5 < ratio < 2.0
+        errors.append(errors_deg(est.pose, truth))
+        standard_errors.append((est.stats["rotation_se_deg"], est.stats["translation_se_deg"]))
+    # Each error's root mean square is about its predicted standard error (the worst
+    # axis' error bounds the total from above, the other axes add to it).
+    ratio = np.sqrt(np.mean(np.square(errors), axis=0)) / np.median(standard_errors, axis=0)
+    assert np.all((ratio > 0.5) & (ratio < 2.0)), ratio
     # Few pairs hugging the horizon leave the rotation loose; pairs all round do not.
     _, b1, b2 = horizon_scene(rng, 15, elevation_deg=0.5)
     loose = estimate_pose(CalibrationPairs(np.arange(15), jitter(rng, b1, 0.05), b2))
     _, _, b1, b2 = scene(rng, [0, 1, 0], n=300)
     firm = estimate_pose(CalibrationPairs(np.arange(300), jitter(rng, b1, 0.05), b2))
     assert firm.stats["rotation_se_deg"] < 0.05 < 0.3 < loose.stats["rotation_se_deg"]
+    assert firm.stats["translation_se_deg"] < loose.stats["translation_se_deg"]
     (warning,) = fit_warnings(loose, WIDTH, PoseParams())
     assert "poorly determined" in warning
     assert fit_warnings(firm, WIDTH, PoseParams()) == []
+
+
+def test_the_worst_axis_covariance_spreads_each_part_evenly() -> None:
+    rng = np.random.default_rng(2)
+    _, b1, b2 = horizon_scene(rng, 30, elevation_deg=3.0)
+    est = estimate_pose(CalibrationPairs(np.arange(30), jitter(rng, b1, 0.05), b2))
+    spread = worst_axis_covariance(est.covariance, est.pose.translation)
+    rotation_se, translation_se = standard_errors_deg(est.covariance)
+    np.testing.assert_allclose(np.diag(spread)[:3], np.radians(rotation_se) ** 2)
+    # Every direction across the baseline gets its worst variance, none along it.
+    np.testing.assert_allclose(
+        np.linalg.eigvalsh(spread[3:, 3:]),
+        [0.0, *[np.radians(translation_se) ** 2] * 2],
+        atol=1e-15,
+    )
+    np.testing.assert_allclose(spread[3:, 3:] @ est.pose.translation, 0.0, atol=1e-15)
+    assert not spread[:3, 3:].any()
+    # Each part is at least as uncertain in every direction as the fit says it is.
+    for part in (slice(0, 3), slice(3, 6)):
+        assert np.linalg.eigvalsh(spread[part, part] - est.covariance[part, part]).min() > -1e-15
+    assert np.isinf(worst_axis_covariance(np.full((6, 6), np.inf), est.pose.translation)).all()

@@ -255,16 +255,68 @@ def test_points_carry_a_range_sd_that_grows_with_range_and_falls_with_snr() -> N
     np.testing.assert_allclose(sd[2] / sd[1], 4.0, rtol=0.1)  # far away: r² along a ray
     np.testing.assert_allclose(sd[3] / sd[2], 0.5, rtol=1e-6)  # σ ∝ 1 / √SNR
     assert 0.1 < sd[2] < 2.0  # metres at 16 m, 640 px, 1.5 m apart
-    posed = triangulate(det1, det2, 0, POSE, WIDTH, SEPARATION, EXACT, rotation_sd_rad=2e-3)
-    assert np.all(posed.range_sd_m > sd)  # the pose's own error adds to camera 2's
+    covariance = np.diag([4e-6, 4e-6, 4e-6, 0.0, 0.0, 0.0])  # 2 mrad on each rotation axis
+    posed = triangulate(det1, det2, 0, POSE, WIDTH, SEPARATION, EXACT, pose_covariance=covariance)
+    assert np.all(posed.range_sd_m > sd)  # the pose's own error adds to the detections'
 
 
-def test_calibration_carries_the_rotation_standard_error(tmp_path) -> None:
+def pose_draw(rng: np.random.Generator, covariance: np.ndarray) -> Pose:
+    """A pose drawn about `POSE` from a covariance of its six parameters."""
+    omega_t = rng.multivariate_normal(np.zeros(6), covariance)
+    turn = Rotation.from_rotvec(omega_t[:3]).as_matrix()
+    return Pose(turn @ POSE.rotation, POSE.translation + omega_t[3:])
+
+
+def test_range_sd_predicts_the_scatter_from_the_pose_error() -> None:
+    rng = np.random.default_rng(4)
+    points = random_points(rng, 6, near=3.0, far=18.0) / SEPARATION
+    b1 = points / np.linalg.norm(points, axis=1, keepdims=True)
+    in2 = POSE.world_to_camera2(points, 1.0)
+    b2 = in2 / np.linalg.norm(in2, axis=1, keepdims=True)
+    # The baseline's direction loose in one plane, the rotation mildly, the two coupled;
+    # nothing along the (unit) translation itself.
+    t = POSE.translation
+    across = np.cross(t, [0.0, 0.0, 1.0])
+    across /= np.linalg.norm(across)
+    mixing = np.zeros((6, 6))
+    mixing[:3, :3] = 1e-3 * np.eye(3)
+    mixing[3:, 3] = 4e-3 * across
+    mixing[3:, 0] = 1e-3 * np.cross(t, across)
+    covariance = mixing @ mixing.T
+    zero = np.zeros(6)
+    predicted = range_sd(b1, b2, POSE, zero, zero, covariance)
+    draws = np.stack(
+        [
+            np.linalg.norm(closest_approach(b1, b2, pose_draw(rng, covariance)).midpoint, axis=-1)
+            for _ in range(4000)
+        ]
+    )
+    np.testing.assert_allclose(draws.std(axis=0), predicted, rtol=0.08)
+    undetermined = np.full((6, 6), np.inf)
+    assert np.isinf(range_sd(b1, b2, POSE, zero, zero, undetermined)).all()
+
+
+def test_calibration_carries_the_pose_covariance(tmp_path) -> None:
+    covariance = np.diag([1e-6, 2e-6, 3e-6, 4e-6, 0.0, 5e-6])
     calibration = Calibration(0, 1.0, POSE, SEPARATION, 30.0, WIDTH, WIDTH // 2)
-    write_calibration(tmp_path / "with.json", calibration, {"residuals": {"rotation_se_deg": 0.2}})
-    assert read_calibration(tmp_path / "with.json").rotation_se_deg == 0.2
+    posed = Calibration(0, 1.0, POSE, SEPARATION, 30.0, WIDTH, WIDTH // 2, 0.1, covariance)
+    write_calibration(tmp_path / "with.json", posed, {"residuals": {"rotation_se_deg": 0.1}})
+    back = read_calibration(tmp_path / "with.json")
+    np.testing.assert_array_equal(back.pose_covariance, covariance)
+    # An earlier release's calibration: its rotation standard error on every axis.
+    write_calibration(tmp_path / "older.json", calibration, {"residuals": {"rotation_se_deg": 0.2}})
+    older = read_calibration(tmp_path / "older.json")
+    assert older.covariance is None and older.rotation_se_deg == 0.2
+    np.testing.assert_allclose(np.diag(older.pose_covariance)[:3], np.radians(0.2) ** 2)
+    assert not older.pose_covariance[3:].any()
     write_calibration(tmp_path / "without.json", calibration, {})
-    assert read_calibration(tmp_path / "without.json").rotation_se_deg == 0.0
+    assert not read_calibration(tmp_path / "without.json").pose_covariance.any()
+    # An undetermined pose (too few pairs) is written as nulls and read back as NaN.
+    loose = Calibration(
+        0, 1.0, POSE, SEPARATION, 30.0, WIDTH, WIDTH // 2, 0.0, np.full((6, 6), np.inf)
+    )
+    write_calibration(tmp_path / "loose.json", loose, {})
+    assert np.isnan(read_calibration(tmp_path / "loose.json").pose_covariance).all()
 
 
 def test_localisation_follows_the_square_root_of_snr_and_tolerates_no_snr() -> None:
