@@ -364,13 +364,20 @@ def pose_covariance(bearing1: FloatArray, bearing2: FloatArray, pose: Pose) -> F
 def standard_errors_deg(covariance: FloatArray) -> tuple[float, float]:
     """Standard errors of a pose (`pose_covariance`) about its worst-determined axes:
     of the rotation, and of the baseline's direction, in degrees."""
-    rotation, translation = covariance[:3, :3], covariance[3:, 3:]
-    if not (np.isfinite(rotation).all() and np.isfinite(translation).all()):
+    rotation, translation = _worst_variances(covariance)
+    return float(np.degrees(np.sqrt(rotation))), float(np.degrees(np.sqrt(translation)))
+
+
+def _worst_variances(covariance: FloatArray) -> tuple[float, float]:
+    """Largest variance (rad²) of the rotation's block and of the translation's; ``inf``
+    for a covariance that is not finite (an undetermined pose)."""
+    if not np.isfinite(covariance).all():
         return float("inf"), float("inf")
-    return tuple(  # type: ignore[return-value]
-        float(np.degrees(np.sqrt(max(float(np.linalg.eigvalsh(c).max()), 0.0))))
-        for c in (rotation, translation)
+    rotation, translation = (
+        max(float(np.linalg.eigvalsh(covariance[part, part]).max()), 0.0)
+        for part in (slice(0, 3), slice(3, 6))
     )
+    return rotation, translation
 
 
 def worst_axis_covariance(covariance: FloatArray, translation: FloatArray) -> FloatArray:
@@ -395,13 +402,12 @@ def worst_axis_covariance(covariance: FloatArray, translation: FloatArray) -> Fl
     ndarray of float64, shape (6, 6)
         ``σ_R² I₃ ⊕ σ_t² (I₃ − t̂ t̂ᵀ)``; ``inf`` everywhere if `covariance` is not finite.
     """
-    if not np.isfinite(covariance).all():
+    rotation, across = _worst_variances(covariance)
+    if not np.isfinite(rotation):
         return np.full((6, 6), np.inf)
     spread = np.zeros((6, 6))
-    rotation_var = max(float(np.linalg.eigvalsh(covariance[:3, :3]).max()), 0.0)
-    translation_var = max(float(np.linalg.eigvalsh(covariance[3:, 3:]).max()), 0.0)
-    spread[:3, :3] = rotation_var * np.eye(3)
-    spread[3:, 3:] = translation_var * (np.eye(3) - np.outer(translation, translation))
+    spread[:3, :3] = rotation * np.eye(3)
+    spread[3:, 3:] = across * (np.eye(3) - np.outer(translation, translation))
     return spread
 
 
