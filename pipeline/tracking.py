@@ -51,7 +51,7 @@ sub-pixel peaks, with neighbours found through a reused image of the pixels' lis
 positions (`pipeline.blobs.PixelIndex`). Candidates are classified
 in batches of `CLASSIFY_BATCH` patches gathered across frames. OpenCV runs on one
 thread here: the decoder's frame threads keep the cores busy. The full-frame images of
-the loop (binned luminance, foreground, filtered foreground, noise scratch and maps) are
+the loop (binned luminance, foreground, filtered foreground, noise scratch, threshold map) are
 allocated once and reused: fresh ones cost the kernel ~1,700 page faults a frame at 4K.
 At 3840 × 1920 with 39 candidates per frame: 0.69 × decode-only throughput (CPU 0.72)
 with the classifier and the recurrence history (`bench/bench_tracking.py`).
