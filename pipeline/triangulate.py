@@ -108,8 +108,8 @@ def triangulate(
         rows without an SNR count as `UNKNOWN_SNR`).
     pose_covariance : ndarray of float64, shape (6, 6), optional
         Of the pose's rotation vector and unit translation
-        (`pipeline.pose.pose_covariance`): the pose's own error adds to the detections'
-        in ``range_sd_m``.
+        (`pipeline.pose.pose_covariance`): the pose's own error, scaled by
+        ``params.pose_error_scale``, adds to the detections' in ``range_sd_m``.
 
     Returns
     -------
@@ -158,7 +158,7 @@ def triangulate(
         pose,
         localisation_rad(det1.snr[j1], width, params.localisation_px),
         localisation_rad(det2.snr[j2], width, params.localisation_px),
-        pose_covariance,
+        None if pose_covariance is None else pose_covariance * params.pose_error_scale**2,
     )
     return Points3D(
         xyz=rays.midpoint[chosen] * separation_m,

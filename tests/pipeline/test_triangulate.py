@@ -255,9 +255,26 @@ def test_points_carry_a_range_sd_that_grows_with_range_and_falls_with_snr() -> N
     np.testing.assert_allclose(sd[2] / sd[1], 4.0, rtol=0.1)  # far away: r² along a ray
     np.testing.assert_allclose(sd[3] / sd[2], 0.5, rtol=1e-6)  # σ ∝ 1 / √SNR
     assert 0.1 < sd[2] < 2.0  # metres at 16 m, 640 px, 1.5 m apart
-    covariance = np.diag([4e-6, 4e-6, 4e-6, 0.0, 0.0, 0.0])  # 2 mrad on each rotation axis
+    covariance = np.diag([4e-6, 4e-6, 4e-6, 1e-6, 1e-6, 1e-6])  # 2 mrad on each rotation axis
     posed = triangulate(det1, det2, 0, POSE, WIDTH, SEPARATION, EXACT, pose_covariance=covariance)
     assert np.all(posed.range_sd_m > sd)  # the pose's own error adds to the detections'
+    # ... in variance, by the square of `pose_error_scale`; 0 leaves it out.
+    variances = [
+        triangulate(
+            det1,
+            det2,
+            0,
+            POSE,
+            WIDTH,
+            SEPARATION,
+            EXACT.model_copy(update={"pose_error_scale": scale}),
+            pose_covariance=covariance,
+        ).range_sd_m
+        ** 2
+        for scale in (0.0, 1.0, 2.0)
+    ]
+    np.testing.assert_allclose(variances[0], sd**2)
+    np.testing.assert_allclose(variances[2] - variances[0], 4 * (variances[1] - variances[0]))
 
 
 def pose_draw(rng: np.random.Generator, covariance: np.ndarray) -> Pose:
