@@ -41,9 +41,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def _train_acceptance(args: argparse.Namespace) -> int:
     from pipeline.classify import DEFAULT_MODEL_NAME
     from pipeline.detection_eval_cli import load_truth_for_eval
-    from pipeline.training.acceptance import night_rows, run_params, train
+    from pipeline.training.acceptance import common_matched_filter, night_rows, run_params, train
 
-    nights = []
+    nights, params = [], []
     for document in args.runs:
         for run in json.loads(document.read_text(encoding="utf-8"))["runs"]:
             if run.get("error"):
@@ -51,12 +51,19 @@ def _train_acceptance(args: argparse.Namespace) -> int:
                 continue
             results = Path(run["results"])
             truth = load_truth_for_eval(Path(run["recording"]))
-            nights.append(night_rows(results, truth, run_params(results)))
+            params.append(run_params(results))
+            nights.append(night_rows(results, truth, params[-1]))
             print(f"{nights[-1].name}: {len(nights[-1].is_flash)} candidates", file=sys.stderr)
     if len({n.seed for n in nights}) < 2:
         print("error: give nights of at least two seeds (folds are whole seeds)", file=sys.stderr)
         return 2
-    model, figures = train(nights, args.classifier or DEFAULT_MODEL_NAME, args.seed)
+    try:
+        matched_sigma_px = common_matched_filter(params)
+    except ValueError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    classifier = args.classifier or DEFAULT_MODEL_NAME
+    model, figures = train(nights, classifier, matched_sigma_px, args.seed)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     model.to_json(args.out)
     print(f"threshold {model.threshold:.3f} (largest out-of-fold F1); out of fold at it:")

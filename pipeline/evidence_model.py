@@ -21,6 +21,7 @@ classifier, or with detections made elsewhere (no probabilities), the rules deci
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Self
@@ -31,7 +32,7 @@ from numpy.typing import NDArray
 from pipeline.acceptance import Evidence, Verdict
 from pipeline.detections import Detections
 from pipeline.evidence_features import FEATURES, StereoMatches, candidate_features
-from pipeline.params import AcceptanceParams, ClassifierParams, FlickerParams
+from pipeline.params import AcceptanceParams, ClassifierParams, FlickerParams, TrackingParams
 from pipeline.trees import TreeEnsemble
 
 MODELS_DIR = Path(__file__).resolve().parent / "models"
@@ -54,13 +55,20 @@ class EvidenceModel:
     classifier : str
         File name of the patch classifier whose probabilities it was trained on.
     card : dict
-        Everything else the file says (training nights, figures).
+        Everything else the file says (training nights, figures; ``matched_sigma_px``:
+        the tracking filter its candidates came from, when the card says).
     """
 
     trees: TreeEnsemble
     threshold: float
     classifier: str
     card: dict[str, Any]
+
+    @property
+    def matched_sigma_px(self) -> float | None:
+        """`TrackingParams.matched_sigma_px` of the nights it was trained on, if known."""
+        value = self.card.get("matched_sigma_px")
+        return None if value is None else float(value)
 
     @classmethod
     def load(cls, path: str | Path) -> Self:
@@ -99,13 +107,15 @@ class EvidenceModel:
 
 
 def evidence_model(
-    params: AcceptanceParams, classifier: ClassifierParams
+    params: AcceptanceParams, classifier: ClassifierParams, tracking: TrackingParams
 ) -> tuple[EvidenceModel | None, str | None]:
     """The evidence model a run uses, or None and why the rules decide instead.
 
     None without a model (``params.evidence_model`` None), when the acceptance stage is
     off, or when the patch classifier is not the one the model was trained with: its
-    probabilities would mean something else.
+    probabilities would mean something else. A model trained on candidates of another
+    matched filter still decides, with a warning (the second value): their SNRs and
+    light curves are on a slightly different scale.
     """
     if not params.enabled or params.evidence_model is None:
         return None, None
@@ -118,6 +128,12 @@ def evidence_model(
         return None, (
             f"the evidence model was trained on {model.classifier}'s probabilities, this run "
             f"classified with {used}: the rules decide"
+        )
+    trained = model.matched_sigma_px
+    if trained is not None and not math.isclose(trained, tracking.matched_sigma_px):
+        return model, (
+            f"the evidence model was trained on candidates of a {trained:g} px matched filter, "
+            f"this run tracked with {tracking.matched_sigma_px:g} px: its decisions may be off"
         )
     return model, None
 

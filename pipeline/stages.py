@@ -371,7 +371,7 @@ def accept(ctx: StageContext) -> StageResult:
     calibration = read_calibration(ctx.path(CALIBRATION_JSON))
     candidates, evidence = _candidates(ctx)
     params = ctx.params.acceptance
-    model, why_rules = evidence_model(params, ctx.params.classifier)
+    model, note = evidence_model(params, ctx.params.classifier, ctx.params.tracking)
     gates = stereo_gates(params, ctx.params.triangulation)
     if model is not None:
         matches = stereo_matches(
@@ -417,7 +417,7 @@ def accept(ctx: StageContext) -> StageResult:
         det.select(keep).to_csv(csv)
         np.savez_compressed(npz, probability=p, accepted=keep, matched=stereo)
         metrics[f"cam{camera}"] = acceptance_counts(ev.verdict, keep, stereo)
-    return StageResult(metrics=metrics, warnings=[why_rules] if why_rules else [])
+    return StageResult(metrics=metrics, warnings=[note] if note else [])
 
 
 def triangulate(ctx: StageContext) -> StageResult:

@@ -109,6 +109,21 @@ def run_params(results: Path) -> ProcessParams:
     return ProcessParams()
 
 
+def common_matched_filter(params: Sequence[ProcessParams]) -> float:
+    """The one `TrackingParams.matched_sigma_px` all the runs tracked with.
+
+    A model learns the SNRs and light curves of one filter's candidates, so runs of
+    different filters are refused (ValueError).
+    """
+    filters = sorted({p.tracking.matched_sigma_px for p in params})
+    if len(filters) != 1:
+        raise ValueError(
+            f"the runs tracked with matched filters of {filters} px; a model is trained on "
+            "the candidates of one"
+        )
+    return filters[0]
+
+
 def to_ensemble(model: Any) -> TreeEnsemble:
     """A fitted binary ``HistGradientBoostingClassifier`` as a `TreeEnsemble`."""
     nodes = [predictor.nodes for (predictor,) in model._predictors]
@@ -166,10 +181,17 @@ def operating_point(
 
 
 def train(
-    nights: Sequence[Night], classifier: str, seed: int = 0, folds: int = 4
+    nights: Sequence[Night],
+    classifier: str,
+    matched_sigma_px: float,
+    seed: int = 0,
+    folds: int = 4,
 ) -> tuple[EvidenceModel, dict[str, Any]]:
     """Fit the evidence model on `nights`; its threshold and the figures of its card
     come from out-of-fold predictions (folds of whole seeds).
+
+    `classifier` (file name) and `matched_sigma_px` (`TrackingParams`) say where the
+    nights' candidates and probabilities came from; the card records both.
 
     Returns
     -------
@@ -196,6 +218,7 @@ def train(
         "kind": "gradient-boosted trees over pipeline.evidence_features.FEATURES",
         "boosting": BOOSTING,
         "seed": seed,
+        "matched_sigma_px": matched_sigma_px,
         "trained_on": [n.name for n in nights],
         "n_rows": len(rows),
         "n_flashes": int(is_flash.sum()),

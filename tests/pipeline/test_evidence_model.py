@@ -19,7 +19,13 @@ from pipeline.evidence_model import (
     weigh,
 )
 from pipeline.geometry import Pose, bearing_to_pixel
-from pipeline.params import AcceptanceParams, ClassifierParams, FlickerParams, TriangulationParams
+from pipeline.params import (
+    AcceptanceParams,
+    ClassifierParams,
+    FlickerParams,
+    TrackingParams,
+    TriangulationParams,
+)
 
 WIDTH, FPS, SEPARATION = 640, 30.0, 1.5
 POSE = Pose(np.eye(3), [1.0, 0.0, 0.0])
@@ -43,15 +49,26 @@ def test_a_model_of_other_features_is_refused(tmp_path) -> None:
 
 
 def test_the_rules_decide_without_the_models_classifier() -> None:
-    params = AcceptanceParams()
-    model, why = evidence_model(params, ClassifierParams())
+    params, tracking = AcceptanceParams(), TrackingParams()
+    model, why = evidence_model(params, ClassifierParams(), tracking)
     assert model is not None and why is None
-    model, why = evidence_model(params, ClassifierParams(model="/models/ffnet_gp360_65_rgb.onnx"))
+    other = ClassifierParams(model="/models/ffnet_gp360_65_rgb.onnx")
+    model, why = evidence_model(params, other, tracking)
     assert model is None and "ffnet_gp360_65_rgb.onnx" in why
-    model, why = evidence_model(params, ClassifierParams(enabled=False))
+    model, why = evidence_model(params, ClassifierParams(enabled=False), tracking)
     assert model is None and "no patch classifier" in why
-    assert evidence_model(AcceptanceParams(evidence_model=None), ClassifierParams()) == (None, None)
-    assert evidence_model(AcceptanceParams(enabled=False), ClassifierParams()) == (None, None)
+    no_model = AcceptanceParams(evidence_model=None)
+    assert evidence_model(no_model, ClassifierParams(), tracking) == (None, None)
+    off = AcceptanceParams(enabled=False)
+    assert evidence_model(off, ClassifierParams(), tracking) == (None, None)
+
+
+def test_a_model_of_another_matched_filter_decides_with_a_warning() -> None:
+    shipped = EvidenceModel.load(DEFAULT_EVIDENCE_MODEL).matched_sigma_px
+    assert shipped == TrackingParams().matched_sigma_px
+    other = TrackingParams(matched_sigma_px=2 * shipped)
+    model, why = evidence_model(AcceptanceParams(), ClassifierParams(), other)
+    assert model is not None and f"{shipped:g} px matched filter" in why
 
 
 def _camera(frames, points, snr, probability, camera):

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from pipeline.evidence_features import FEATURES
 from pipeline.evidence_model import EvidenceModel
-from pipeline.training.acceptance import Night, best_f1_threshold, train
+from pipeline.params import ProcessParams, TrackingParams
+from pipeline.training.acceptance import Night, best_f1_threshold, common_matched_filter, train
 
 
 def test_the_f1_threshold_cuts_between_distinct_probabilities() -> None:
@@ -30,7 +32,7 @@ def _night(seed: int, scenario: str, rng: np.random.Generator) -> Night:
 def test_a_model_learns_evidence_and_writes_its_card(tmp_path) -> None:
     rng = np.random.default_rng(0)
     nights = [_night(seed, scenario, rng) for seed in (1, 2, 3) for scenario in ("a", "b")]
-    model, figures = train(nights, "flashnet2.onnx", seed=0, folds=3)
+    model, figures = train(nights, "flashnet2.onnx", 0.75, seed=0, folds=3)
     assert set(figures) == {"a", "b"}
     assert all(f["precision"] > 0.9 and f["recall_of_candidates"] > 0.9 for f in figures.values())
     assert model.card["trained_on"] == [n.name for n in nights]
@@ -38,6 +40,16 @@ def test_a_model_learns_evidence_and_writes_its_card(tmp_path) -> None:
     model.to_json(path)
     back = EvidenceModel.load(path)
     assert back.threshold == model.threshold and back.classifier == "flashnet2.onnx"
+    assert back.matched_sigma_px == 0.75
     test = _night(9, "a", rng)
     accepted = back.probability(test.rows) >= back.threshold
     assert np.mean(accepted == test.is_flash) > 0.9
+
+
+def test_a_model_learns_the_candidates_of_one_matched_filter() -> None:
+    narrow = ProcessParams(tracking=TrackingParams(matched_sigma_px=0.75))
+    assert common_matched_filter([narrow, narrow]) == 0.75
+    with pytest.raises(ValueError, match=r"\[0.75, 1.0\] px"):
+        common_matched_filter([narrow, ProcessParams()])
+    with pytest.raises(ValueError):
+        common_matched_filter([])
