@@ -183,6 +183,37 @@ def local_maxima(
     return out
 
 
+def ring_max(
+    image: NDArray[np.floating], idx: NDArray[np.intp], radius: int
+) -> NDArray[np.float64]:
+    """Largest value of `image` on the square ring `radius` pixels (Chebyshev) around
+    each pixel.
+
+    Columns wrap at the 360° seam; rows beyond the poles read the pole row.
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W)
+        E.g. the matched filter's response.
+    idx : ndarray of intp, shape (N,)
+        Flat indices of the centre pixels.
+    radius : int
+        Ring radius, pixels (≥ 1): the ring holds ``8 · radius`` pixels.
+
+    Returns
+    -------
+    ndarray of float64, shape (N,)
+    """
+    height, width = image.shape
+    rows, cols = np.divmod(idx, width)
+    offsets = np.arange(-radius, radius + 1)
+    dr, dc = (a.ravel() for a in np.meshgrid(offsets, offsets, indexing="ij"))
+    on_ring = np.maximum(np.abs(dr), np.abs(dc)) == radius
+    ring_rows = np.clip(rows[:, None] + dr[on_ring], 0, height - 1)
+    ring_cols = (cols[:, None] + dc[on_ring]) % width
+    return np.asarray(image[ring_rows, ring_cols].max(axis=1), np.float64)
+
+
 def split_at_peaks(
     idx: NDArray[np.intp], labels: NDArray[np.intp], peaks: NDArray[np.bool_], width: int
 ) -> NDArray[np.intp]:

@@ -128,7 +128,9 @@ class TrackingParams(BaseModel):
         default=500,
         ge=1,
         description="Largest blob kept, in pixels: fireflies are 1–10 px across even in "
-        "5.6K video; larger blobs are lamps, headlights or exposure changes.",
+        "5.6K video; larger blobs are lamps, headlights or exposure changes. A seed inside "
+        "one still counts when it stands `threshold` σ above the light around it (a flash "
+        "against a headlight's glow), with the spot around its peak.",
     )
     max_candidates_per_frame: int = Field(
         default=500,

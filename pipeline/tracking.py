@@ -77,6 +77,7 @@ from pipeline.blobs import (
     label,
     local_maxima,
     measure,
+    ring_max,
     split_at_peaks,
     subpixel_peak,
     upsample,
@@ -287,6 +288,7 @@ class _FrameDetector:
         self._mask = np.empty(self._binned, np.bool_)
         radius = max(1, math.ceil(2 * params.matched_sigma_px))  # of a local maximum
         self._pixels = PixelIndex(self._binned, min(radius, self._binned[1]))
+        self._ring_px = max(radius + 1, math.ceil(3 * params.matched_sigma_px))
         # The foreground and its filtered image, reused by every lane and frame: a fresh
         # pair per frame costs the kernel ~2,000 page faults a frame at 4K.
         self._foreground = np.empty(self._binned, np.float32)
@@ -353,7 +355,7 @@ class _FrameDetector:
     ) -> tuple[Blobs, FaintPeaks]:
         idx, snr = self._extent_pixels(filtered, noise, background)
         idx, snr = self._limit_pixels(idx, snr)
-        labels, blob_snr, peak, (faint_idx, faint_snr) = self._seeded(idx, snr)
+        labels, blob_snr, peak, (faint_idx, faint_snr) = self._seeded(idx, snr, filtered)
         area = np.bincount(labels[labels >= 0], minlength=len(blob_snr)) * self._bin**2
         keep = self._filter(area, blob_snr)
         inside = np.isin(labels, keep)
@@ -403,7 +405,7 @@ class _FrameDetector:
         return idx[keep], snr[keep]
 
     def _seeded(
-        self, idx: NDArray[np.intp], snr: NDArray[np.float64]
+        self, idx: NDArray[np.intp], snr: NDArray[np.float64], filtered: NDArray[np.float32]
     ) -> tuple[
         NDArray[np.intp],
         NDArray[np.float64],
@@ -416,10 +418,12 @@ class _FrameDetector:
         A candidate is a local maximum of the SNR reaching the seed level; a blob
         holding several (two flashes side by side, a flash on a bright rim) is split
         between them, nearest peak first. A blob larger than ``max_area`` (a lamp,
-        headlights) is dropped whole, however many peaks its plateau has. A local
-        maximum from ``lit_threshold`` up to the seed level is a faint peak: it neither
-        splits a blob nor becomes a candidate (a maximum is one against every pixel
-        around it, so the candidates are the same with or without faint peaks).
+        headlights, and the glow around them) is dropped, however many peaks its plateau
+        has, except the seeds that stand out of its light (`_standing_out`): a flash
+        seen against a headlight's glow keeps the spot around its peak (`_own_spots`).
+        A local maximum from ``lit_threshold`` up to the seed level is a faint peak: it
+        neither splits a blob nor becomes a candidate (a maximum is one against every
+        pixel around it, so the candidates are the same with or without faint peaks).
         """
         width = self._binned[1]
         self._pixels.assign(idx)
@@ -427,15 +431,54 @@ class _FrameDetector:
         area = np.bincount(blobs) * self._bin**2 if len(blobs) else np.zeros(0, np.intp)
         too_large = area > self._params.max_area
         self._dropped_by_area += int(np.count_nonzero(too_large))
+        in_glow = too_large[blobs]
         threshold = self._params.threshold
         lowest = min(threshold, self._params.lit_threshold or threshold)
-        maxima = local_maxima(
-            self._pixels, snr, self._pixels.margin, (snr >= lowest) & ~too_large[blobs]
-        )
+        tested = np.where(in_glow, snr >= threshold, snr >= lowest)
+        maxima = local_maxima(self._pixels, snr, self._pixels.margin, tested)
+        glow_maxima = np.flatnonzero(maxima & in_glow)
+        maxima[glow_maxima] = self._standing_out(filtered, idx[glow_maxima], snr[glow_maxima])
         peaks = maxima & (snr >= threshold)
         faint = np.flatnonzero(maxima & (snr < threshold))
         labels = split_at_peaks(idx, blobs, peaks, width)
+        labels = self._own_spots(idx, labels, in_glow, idx[peaks])
         return labels, snr[peaks], idx[peaks], (idx[faint], snr[faint])
+
+    def _standing_out(
+        self, filtered: NDArray[np.float32], idx: NDArray[np.intp], snr: NDArray[np.float64]
+    ) -> NDArray[np.bool_]:
+        """Which peaks inside an oversized blob stand ``threshold`` σ above the brightest
+        filtered response on a ring around them (`ring_max`, at 3 filter σ).
+
+        A flash on a headlight's glow rises above the glow a few pixels uphill; a point
+        on a plateau, or at its rim, stands no higher than the plateau next to it.
+        """
+        if len(idx) == 0:
+            return np.zeros(0, bool)
+        centre = filtered.ravel()[idx].astype(np.float64)
+        ring = ring_max(filtered, idx, self._ring_px)
+        return np.asarray(snr * (1.0 - ring / centre) >= self._params.threshold)
+
+    def _own_spots(
+        self,
+        idx: NDArray[np.intp],
+        labels: NDArray[np.intp],
+        in_glow: NDArray[np.bool_],
+        peak_idx: NDArray[np.intp],
+    ) -> NDArray[np.intp]:
+        """`labels` with the pixels of oversized blobs kept only within the local-maximum
+        radius of their own peak: the rest is the glow, not the flash."""
+        rows = np.flatnonzero(in_glow & (labels >= 0))
+        if len(rows) == 0:
+            return labels
+        width = self._binned[1]
+        r, c = np.divmod(idx[rows], width)
+        pr, pc = np.divmod(peak_idx[labels[rows]], width)
+        dc = np.abs(c - pc)
+        distance = np.maximum(np.abs(r - pr), np.minimum(dc, width - dc))
+        out = labels.copy()
+        out[rows[distance > self._pixels.margin]] = -1
+        return out
 
     def _faint_cap(
         self, idx: NDArray[np.intp], snr: NDArray[np.float64]

@@ -1,11 +1,11 @@
-"""Sparse-pixel blobs: the neighbour index, labelling and local maxima (pipeline.blobs)."""
+"""Sparse-pixel blobs: the neighbour index, labelling, local maxima and rings (pipeline.blobs)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from pipeline.blobs import PixelIndex, label, local_maxima
+from pipeline.blobs import PixelIndex, label, local_maxima, ring_max
 
 
 def index_of(mask: np.ndarray, margin: int) -> tuple[PixelIndex, np.ndarray]:
@@ -72,3 +72,16 @@ def test_local_maxima_within_the_radius_ties_to_the_first_pixel() -> None:
     np.testing.assert_array_equal(peaks, [9, 2 * 10 + 6])
     only_first = np.asarray(idx == 2 * 10 + 4)  # only tested pixels can be maxima
     assert not local_maxima(pixels, values, 2, only_first).any()
+
+
+def test_the_ring_wraps_at_the_seam_and_reads_the_pole_row_beyond_it() -> None:
+    image = np.zeros((6, 10))
+    image[3, 8] = 5.0  # on the ring of (3, 1) at radius 3, across the seam
+    image[3, 4] = 9.0  # on the same ring, on the other side
+    image[0, 2] = 2.0  # beyond the top pole from (1, 2) at radius 2: read as row 0
+    centre = np.array([3 * 10 + 1, 1 * 10 + 2])
+    np.testing.assert_array_equal(ring_max(image, centre, 3), [9.0, 2.0])
+    image[3, 4] = 0.0
+    assert ring_max(image, centre[:1], 3)[0] == 5.0
+    assert ring_max(image, centre[:1], 2)[0] == 0.0  # radius 2 misses both
+    assert ring_max(image, np.zeros(0, np.intp), 3).shape == (0,)

@@ -432,6 +432,27 @@ def test_blobs_outside_the_area_bounds_are_dropped(tmp_path: Path) -> None:
     assert result.stats.dropped_by_area == 1
 
 
+def test_a_flash_on_a_headlights_glow_is_found_and_the_glow_is_not(tmp_path: Path) -> None:
+    # A glow of σ 6 px is one blob far over max_area; a flash 16 px from its centre
+    # sits on its slope, a saturated square is a plateau with a rim.
+    glow = (300.0, 160.0)
+    flash = (316.3, 160.4)
+    plateau = np.zeros((H, W))
+    plateau[40:70, 500:540] = 230.0
+    empty = np.full((H, W), BACKGROUND, np.uint8)
+    lights = vf.gaussian_spots(H, W, [glow[0]], [glow[1]], [200.0], 6.0, BACKGROUND + plateau)
+    lit = vf.gaussian_spots(H, W, [glow[0], flash[0]], [glow[1], flash[1]], [200.0, 80.0], 1.0)
+    both = np.maximum(lights, lit)
+    pictures = [empty] * 3 + [lights, empty, empty, both]
+    info = probe_video([vf.write_video(tmp_path / "glow.mp4", pictures, crf=8)])
+    found = track_with_stats(info, params=FAST).detections
+    near_flash = _near(found, *flash, radius=1.0)
+    assert np.count_nonzero(near_flash) == 1 and found.frame[near_flash][0] == 6
+    # Nothing else but the glow's core: not its slope, the plateau or the plateau's rim.
+    elsewhere = found.select(~near_flash)
+    assert np.all(_near(elsewhere, *glow, radius=1.5))
+
+
 def test_range_outside_the_video_is_refused(spots: Scene) -> None:
     with pytest.raises(ValueError, match=r"frame range \[40, 50\) is outside"):
         track(spots.info, 40, 50)
