@@ -22,7 +22,9 @@ def test_ring_statistics_of_a_flat_patch() -> None:
     x = rgb[None, :, None, None].expand(2, 3, 33, 33)
     s = split(RingStatistics(33)(x))
     expected = torch.log1p(rgb * 255)[None, :, None].expand(2, 3, N_RINGS)
-    torch.testing.assert_close(s["colour"], expected)
+    # A ring's mean is a float32 product with its weights: summation order (the CPU's
+    # kernels) moves it by ~1e-5, far below a grey level in log space.
+    torch.testing.assert_close(s["colour"], expected, rtol=0, atol=1e-4)
     torch.testing.assert_close(s["max_log"], torch.full((2, N_RINGS), float(np.log1p(70.0))))
     torch.testing.assert_close(s["std_log"], torch.full((2, N_RINGS), 1e-3))
     assert s["texture"].abs().max() < 1e-6
