@@ -43,6 +43,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import IntEnum
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -50,7 +51,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from pipeline.detections import Detections
-from pipeline.flicker import flickering, spot_tree
+from pipeline.flicker import flicker_duty, flickering, spot_tree
 from pipeline.geometry import Pose
 from pipeline.params import AcceptanceParams, FlickerParams, TriangulationParams
 from pipeline.refine import refine_positions
@@ -82,11 +83,15 @@ class Evidence:
         Frames its spot stays lit (the light curve's length around it).
     chain : ndarray of intp
         Its light curve (`spot_chains` label): which candidates are the same lit spot.
+    flicker_duty : ndarray of float64, or None
+        Its `pipeline.flicker.flicker_duty`; None where it was not measured (imported
+        detections, the baseline, evidence of earlier releases).
     """
 
     verdict: NDArray[np.int8]
     lit_frames: NDArray[np.int64]
     chain: NDArray[np.intp]
+    flicker_duty: NDArray[np.float64] | None = None
 
     def __len__(self) -> int:
         return len(self.verdict)
@@ -106,9 +111,14 @@ class Evidence:
         return {v.name.lower(): int(found[v]) for v in Verdict}
 
     def save(self, path: str | Path) -> None:
-        np.savez_compressed(
-            path, verdict=self.verdict, lit_frames=self.lit_frames, chain=self.chain
-        )
+        arrays: dict[str, Any] = {
+            "verdict": self.verdict,
+            "lit_frames": self.lit_frames,
+            "chain": self.chain,
+        }
+        if self.flicker_duty is not None:
+            arrays["flicker_duty"] = self.flicker_duty
+        np.savez_compressed(path, **arrays)
 
     @classmethod
     def load(cls, path: str | Path) -> Evidence:
@@ -116,7 +126,8 @@ class Evidence:
             verdict = data["verdict"]
             # Evidence of earlier releases has no chains: each candidate its own.
             chain = data["chain"] if "chain" in data else np.arange(len(verdict))
-            return cls(verdict=verdict, lit_frames=data["lit_frames"], chain=chain)
+            duty = data.get("flicker_duty")
+            return cls(verdict, data["lit_frames"], chain, duty)
 
     @classmethod
     def imported(cls, detections: Detections, width: int, params: AcceptanceParams) -> Evidence:
@@ -254,13 +265,21 @@ def assess(
         likely = probability >= threshold
     verdict = np.where(likely & snr_ok, Verdict.CONFIDENT, Verdict.DOUBTFUL)
     verdict = np.where(unlikely, Verdict.CLASSIFIER, verdict)
-    flicker_mask = flickering(candidates.frame, candidates.x, candidates.y, width, fps, flicker)
-    verdict = np.where(flicker_mask, Verdict.FLICKER, verdict)
+    duty = flicker_duty(
+        candidates.frame,
+        candidates.x,
+        candidates.y,
+        width,
+        fps,
+        flicker.radius_deg,
+        flicker.window_s,
+    )
+    verdict = np.where(flickering(duty, flicker), Verdict.FLICKER, verdict)
     # A spot lit without a break also flickers by the duty measure; say the specific why.
     verdict = np.where(lit > params.max_flash_s * fps, Verdict.STEADY, verdict)
     recurrent = candidates.recurrence >= params.max_recurrence  # False for NaN
     verdict = np.where(recurrent & (verdict <= Verdict.DOUBTFUL), Verdict.RECURRENT, verdict)
-    return Evidence(verdict.astype(np.int8), lit, chain)
+    return Evidence(verdict.astype(np.int8), lit, chain, duty)
 
 
 def refined(candidates: Detections, width: int, fps: float, params: AcceptanceParams) -> Detections:

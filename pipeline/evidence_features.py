@@ -179,7 +179,11 @@ def _own_features(
     np.fmax.at(peak_snr, ev.chain, snr)
     peak_probability = np.full(len(chain_size), -np.inf)
     np.fmax.at(peak_probability, ev.chain, probability)
-    duty = flicker_duty(det.frame, det.x, det.y, width, fps, flicker.radius_deg, flicker.window_s)
+    duty = ev.flicker_duty
+    if duty is None:  # not measured by the merge stage
+        duty = flicker_duty(
+            det.frame, det.x, det.y, width, fps, flicker.radius_deg, flicker.window_s
+        )
     verdicts = np.eye(len(Verdict))[ev.verdict]
     revisits = _spot_revisits(det, ev.chain, width, fps)
     with np.errstate(divide="ignore", invalid="ignore"):

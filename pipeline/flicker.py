@@ -94,19 +94,11 @@ def spot_tree(
     return cKDTree(np.column_stack([np.asarray(t, dtype=np.float64), u, v]), boxsize=box)
 
 
-def flickering(
-    frame: NDArray[np.integer],
-    x: NDArray[np.floating],
-    y: NDArray[np.floating],
-    width: int,
-    fps: float,
-    params: FlickerParams,
-) -> NDArray[np.bool_]:
-    """(N,) True where a candidate sits on a flickering spot (see `flicker_duty`).
+def flickering(duty: NDArray[np.floating], params: FlickerParams) -> NDArray[np.bool_]:
+    """(N,) True where a candidate's `flicker_duty` says it sits on a flickering spot.
 
     All False when ``params.enabled`` is false.
     """
     if not params.enabled:
-        return np.zeros(len(frame), dtype=bool)
-    duty = flicker_duty(frame, x, y, width, fps, params.radius_deg, params.window_s)
-    return duty > params.max_duty
+        return np.zeros(len(duty), dtype=bool)
+    return np.asarray(duty > params.max_duty)

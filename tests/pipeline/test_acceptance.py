@@ -299,9 +299,14 @@ def test_imported_detections_are_confident_unless_faint() -> None:
 
 
 def test_evidence_round_trips_and_reads_earlier_files_without_chains(tmp_path) -> None:
-    evidence = Evidence(np.array([0, 1, 4], np.int8), np.array([3, 3, 1]), np.array([0, 0, 1]))
+    duty = np.array([0.1, 0.1, 0.5])
+    evidence = Evidence(
+        np.array([0, 1, 4], np.int8), np.array([3, 3, 1]), np.array([0, 0, 1]), duty
+    )
     evidence.save(tmp_path / "now.npz")
     loaded = Evidence.load(tmp_path / "now.npz")
     assert loaded.verdict.tolist() == [0, 1, 4] and loaded.chain.tolist() == [0, 0, 1]
+    np.testing.assert_array_equal(loaded.flicker_duty, duty)
     np.savez_compressed(tmp_path / "earlier.npz", verdict=evidence.verdict, lit_frames=[3, 3, 1])
-    assert Evidence.load(tmp_path / "earlier.npz").chain.tolist() == [0, 1, 2]
+    earlier = Evidence.load(tmp_path / "earlier.npz")
+    assert earlier.chain.tolist() == [0, 1, 2] and earlier.flicker_duty is None

@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from numpy.typing import NDArray
 
-from pipeline.acceptance import Evidence, Verdict, spot_chains, steady_frames
+from pipeline.acceptance import Evidence, Verdict, assess, spot_chains, steady_frames
 from pipeline.detections import Detections
 from pipeline.evidence_features import FEATURES, candidate_features, stereo_matches
 from pipeline.geometry import Pose, bearing_to_pixel
-from pipeline.params import FlickerParams, TriangulationParams
+from pipeline.params import AcceptanceParams, FlickerParams, TriangulationParams
 
 WIDTH, SEPARATION = 640, 1.5
 POSE = Pose(np.eye(3), [1.0, 0.0, 0.0])
@@ -84,6 +86,25 @@ def test_own_evidence_columns_describe_the_light_curve() -> None:
     assert verdicts.sum(axis=1).tolist() == [1] * 5 and np.all(verdicts[:, 1] == 1)
     assert np.all(np.isnan(_col(rows1, "recurrence")))  # not measured here
     assert np.all(_col(rows1, "flicker_duty") > 0)
+
+
+def test_the_flicker_duty_the_merge_stage_measured_is_the_one_read() -> None:
+    candidates, evidence = _scene()
+    measured = [
+        assess(c, WIDTH, 30.0, 0.5, AcceptanceParams(), FlickerParams()) for c in candidates
+    ]
+    assert all(m.flicker_duty is not None for m in measured)
+    stored = tuple(
+        replace(e, flicker_duty=m.flicker_duty) for e, m in zip(evidence, measured, strict=True)
+    )
+    recomputed = _features(candidates, evidence, fps=30.0)
+    for read, again in zip(_features(candidates, stored, fps=30.0), recomputed, strict=True):
+        np.testing.assert_array_equal(read, again)
+    halved = (replace(stored[0], flicker_duty=measured[0].flicker_duty / 2), stored[1])
+    assert np.array_equal(
+        _col(_features(candidates, halved, fps=30.0)[0], "flicker_duty"),
+        _col(recomputed[0], "flicker_duty") / 2,
+    )
 
 
 def test_durations_read_the_same_at_another_frame_rate() -> None:

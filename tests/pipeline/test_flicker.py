@@ -24,7 +24,8 @@ def test_flash_trains_are_kept_and_a_flickering_spot_is_not() -> None:
         [lit, 430 + rng.uniform(-0.7, 0.7, lit.size), 110 + rng.uniform(-0.7, 0.7, lit.size)]
     )
     cand = np.vstack([trains, moon])
-    flagged = flickering(cand[:, 0], cand[:, 1], cand[:, 2], WIDTH, FPS, FlickerParams())
+    duty = flicker_duty(cand[:, 0], cand[:, 1], cand[:, 2], WIDTH, FPS)
+    flagged = flickering(duty, FlickerParams())
     assert not flagged[: len(trains)].any()
     assert flagged[len(trains) :].mean() > 0.95
 
@@ -42,6 +43,7 @@ def test_duty_counts_neighbours_in_the_window_across_the_seam() -> None:
 
 def test_disabled_and_empty() -> None:
     frames, xy = np.arange(100), np.full(100, 10.0)
-    assert not flickering(frames, xy, xy, WIDTH, FPS, FlickerParams(enabled=False)).any()
-    assert flickering(frames, xy, xy, WIDTH, FPS, FlickerParams()).all()
+    duty = flicker_duty(frames, xy, xy, WIDTH, FPS)
+    assert not flickering(duty, FlickerParams(enabled=False)).any()
+    assert flickering(duty, FlickerParams()).all()
     assert flicker_duty(np.zeros(0, int), np.zeros(0), np.zeros(0), WIDTH, FPS).shape == (0,)
