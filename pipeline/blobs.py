@@ -18,7 +18,16 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 # Neighbours after a pixel in raster order (8-connectivity): right, then the row below.
-_FORWARD_NEIGHBOURS = ((0, 1), (1, -1), (1, 0), (1, 1))
+_FORWARD_NEIGHBOURS = np.array([(0, 1), (1, -1), (1, 0), (1, 1)])
+
+
+def _window(radius: int) -> NDArray[np.intp]:
+    """Offsets ``(dr, dc)`` of a square window of half side `radius` but its centre, in
+    raster order."""
+    offsets = np.arange(-radius, radius + 1)
+    dr, dc = (a.ravel() for a in np.meshgrid(offsets, offsets, indexing="ij"))
+    centre = (dr == 0) & (dc == 0)
+    return np.column_stack([dr[~centre], dc[~centre]])
 
 
 @dataclass(frozen=True)
@@ -105,14 +114,29 @@ class PixelIndex:
     def __len__(self) -> int:
         return len(self._at)
 
-    def neighbour(self, dr: int, dc: int, of: NDArray[np.intp] | None = None) -> NDArray[np.int32]:
-        """List position of the pixel ``(dr, dc)`` away (rows, columns; at most `margin`)
-        from each listed pixel, or from those at list positions `of`; −1 where that pixel
-        is not listed or lies beyond the poles."""
-        if max(abs(dr), abs(dc)) > self.margin:
-            raise ValueError(f"offset ({dr}, {dc}) exceeds the margin of {self.margin} pixels")
+    def neighbours(
+        self, offsets: NDArray[np.intp], of: NDArray[np.intp] | None = None
+    ) -> NDArray[np.int32]:
+        """List positions of the pixels at `offsets` from each listed pixel, or from
+        those at list positions `of`; −1 where that pixel is not listed or lies beyond
+        the poles.
+
+        Parameters
+        ----------
+        offsets : ndarray of int, shape (K, 2)
+            Row and column offsets ``(dr, dc)``, each at most `margin` pixels.
+        of : ndarray of int, shape (N,), optional
+            List positions of the pixels asked about (default: all of them).
+
+        Returns
+        -------
+        ndarray of int32, shape (N, K)
+        """
+        offsets = np.asarray(offsets, np.intp).reshape(-1, 2)
+        if len(offsets) and np.abs(offsets).max() > self.margin:
+            raise ValueError(f"offsets {offsets.tolist()} exceed the margin of {self.margin} px")
         at = self._at if of is None else self._at[of]
-        return self._position[at + (dr * self._stride + dc)]
+        return self._position[at[:, None] + (offsets[:, 0] * self._stride + offsets[:, 1])]
 
 
 def label(pixels: PixelIndex) -> NDArray[np.intp]:
@@ -132,13 +156,9 @@ def label(pixels: PixelIndex) -> NDArray[np.intp]:
     n = len(pixels)
     if n == 0:
         return np.zeros(0, np.intp)
-    src, dst = [], []
-    for dr, dc in _FORWARD_NEIGHBOURS:
-        pos = pixels.neighbour(dr, dc)
-        hit = np.flatnonzero(pos >= 0)
-        src.append(hit)
-        dst.append(pos[hit])
-    edges_from, edges_to = np.concatenate(src), np.concatenate(dst)
+    pos = pixels.neighbours(_FORWARD_NEIGHBOURS).ravel()
+    hit = np.flatnonzero(pos >= 0)
+    edges_from, edges_to = hit // len(_FORWARD_NEIGHBOURS), pos[hit]
     graph = coo_matrix((np.ones(len(edges_from), np.int8), (edges_from, edges_to)), shape=(n, n))
     _, labels = connected_components(graph, directed=False)
     # connected_components numbers components by their lowest node: raster order here.
@@ -168,16 +188,14 @@ def local_maxima(
         The pixels to test (e.g. those above a seed level); only they can be maxima.
     """
     tested = np.flatnonzero(candidates)
-    mine = values[tested]
-    peak = np.ones(len(tested), bool)
-    for dr in range(-radius, radius + 1):
-        for dc in range(-radius, radius + 1):
-            if dr == 0 and dc == 0:
-                continue
-            pos = pixels.neighbour(dr, dc, tested)
-            other = values[pos]  # pos −1 reads the last value: masked by `pos >= 0`
-            before = (dr, dc) < (0, 0)  # the neighbour comes first in raster order
-            peak &= ~((pos >= 0) & ((other > mine) | ((other == mine) & before)))
+    mine = values[tested][:, None]
+    window = _window(radius)
+    pos = pixels.neighbours(window, tested)
+    other = values[pos]  # pos −1 reads the last value: masked by `pos >= 0`
+    # Ties go to the neighbour that comes first in raster order.
+    before = (window[:, 0] < 0) | ((window[:, 0] == 0) & (window[:, 1] < 0))
+    beaten = (pos >= 0) & ((other > mine) | ((other == mine) & before))
+    peak = ~beaten.any(axis=1)
     out = np.zeros(len(values), bool)
     out[tested[peak]] = True
     return out
@@ -206,11 +224,10 @@ def ring_max(
     """
     height, width = image.shape
     rows, cols = np.divmod(idx, width)
-    offsets = np.arange(-radius, radius + 1)
-    dr, dc = (a.ravel() for a in np.meshgrid(offsets, offsets, indexing="ij"))
-    on_ring = np.maximum(np.abs(dr), np.abs(dc)) == radius
-    ring_rows = np.clip(rows[:, None] + dr[on_ring], 0, height - 1)
-    ring_cols = (cols[:, None] + dc[on_ring]) % width
+    window = _window(radius)
+    dr, dc = window[np.abs(window).max(axis=1) == radius].T
+    ring_rows = np.clip(rows[:, None] + dr, 0, height - 1)
+    ring_cols = (cols[:, None] + dc) % width
     return np.asarray(image[ring_rows, ring_cols].max(axis=1), np.float64)
 
 

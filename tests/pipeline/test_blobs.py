@@ -20,12 +20,17 @@ def test_neighbours_wrap_at_the_seam_and_stop_at_the_poles() -> None:
     mask[0, 0] = mask[0, 5] = mask[1, 4] = mask[3, 1] = True
     pixels, idx = index_of(mask, margin=2)
     at = {int(i): n for n, i in enumerate(idx)}  # flat index -> list position
-    assert pixels.neighbour(0, -1)[at[0]] == at[5]  # (0, 0) sees (0, 5) across the seam
-    assert pixels.neighbour(0, 1)[at[5]] == at[0]
-    assert pixels.neighbour(1, -2)[at[0]] == at[6 + 4]  # two columns back, one row down
-    assert pixels.neighbour(-1, 0)[at[0]] == -1  # beyond the top pole
-    assert pixels.neighbour(1, 0)[at[3 * 6 + 1]] == -1  # beyond the bottom pole
-    assert pixels.neighbour(0, 1, of=np.array([at[3 * 6 + 1]]))[0] == -1  # nothing there
+    offsets = np.array([(0, -1), (0, 1), (1, -2), (-1, 0), (1, 0)])
+    pos = pixels.neighbours(offsets)
+    assert pos.shape == (4, 5)
+    assert pos[at[0], 0] == at[5]  # (0, 0) sees (0, 5) across the seam
+    assert pos[at[5], 1] == at[0]
+    assert pos[at[0], 2] == at[6 + 4]  # two columns back, one row down
+    assert pos[at[0], 3] == -1  # beyond the top pole
+    assert pos[at[3 * 6 + 1], 4] == -1  # beyond the bottom pole
+    of = np.array([at[3 * 6 + 1], at[0]])
+    np.testing.assert_array_equal(pixels.neighbours(offsets, of), pos[of])
+    assert pixels.neighbours(offsets[1:2], of)[0, 0] == -1  # nothing right of (3, 1)
 
 
 def test_a_new_list_clears_the_last_one() -> None:
@@ -33,16 +38,16 @@ def test_a_new_list_clears_the_last_one() -> None:
     pixels.assign(np.array([0, 4, 7]))  # (0, 0), (0, 4) and (1, 2)
     pixels.assign(np.array([8]))  # (1, 3)
     assert len(pixels) == 1
-    assert pixels.neighbour(0, -1)[0] == -1  # (1, 2) is no longer listed
+    assert pixels.neighbours(np.array([(0, -1)]))[0, 0] == -1  # (1, 2) is no longer listed
     pixels.assign(np.array([2, 3]))
-    np.testing.assert_array_equal(pixels.neighbour(0, 1), [1, -1])
+    np.testing.assert_array_equal(pixels.neighbours(np.array([(0, 1)])), [[1], [-1]])
 
 
 def test_offsets_beyond_the_margin_are_refused() -> None:
     pixels = PixelIndex((4, 8), margin=1)
     pixels.assign(np.array([9]))
     with pytest.raises(ValueError, match="margin"):
-        pixels.neighbour(2, 0)
+        pixels.neighbours(np.array([(0, 1), (2, 0)]))
     with pytest.raises(ValueError, match="margin"):
         PixelIndex((4, 8), margin=9)
 
