@@ -48,10 +48,28 @@ def extract_patches(frame: Frame, cx: ArrayLike, cy: ArrayLike, size: int) -> ND
     rows, cols = _patch_grid(cx, cy, size, frame.width, frame.height)
     sub_y = frame.height // frame.u.shape[0]
     sub_x = frame.width // frame.u.shape[1]
-    luma = frame.y[rows, cols]
-    cb = frame.u[rows // sub_y, cols // sub_x]
-    cr = frame.v[rows // sub_y, cols // sub_x]
+    chroma_rows, chroma_cols = rows // sub_y, cols // sub_x
+    luma = _gather(frame.y, rows, cols)
+    cb = _gather(frame.u, chroma_rows, chroma_cols)
+    cr = _gather(frame.v, chroma_rows, chroma_cols)
     return yuv_to_rgb(luma, cb, cr, frame.encoding)
+
+
+def _gather(
+    plane: NDArray[np.uint8], rows: NDArray[np.intp], cols: NDArray[np.intp]
+) -> NDArray[np.uint8]:
+    """``plane[rows, cols]`` (broadcast) through flat offsets into the plane's buffer.
+
+    A 2-D gather costs four times a flat `take` on a 4K frame; the plane may be a
+    strided view of the decoder's buffer, so the offsets follow its strides rather than
+    a copy.
+    """
+    if min(plane.strides) <= 0:
+        plane = np.ascontiguousarray(plane)
+    step_row, step_col = (stride // plane.itemsize for stride in plane.strides)
+    extent = (plane.shape[0] - 1) * step_row + (plane.shape[1] - 1) * step_col + 1
+    buffer = np.lib.stride_tricks.as_strided(plane, (extent,), (plane.itemsize,))
+    return np.asarray(buffer.take(rows * step_row + cols * step_col))
 
 
 def extract_patches_from_image(

@@ -77,6 +77,21 @@ def test_frame_patches_follow_the_same_geometry() -> None:
     assert np.array_equal(patch[..., 1], patch[..., 2])
 
 
+def test_patches_of_strided_planes_equal_those_of_contiguous_ones() -> None:
+    # A decoder pads its lines (linesize > width); a flipped plane has negative strides.
+    rng = np.random.default_rng(3)
+    luma, cb, cr = (rng.integers(0, 256, (h, w), np.uint8) for h, w in [(12, 16), (6, 8), (6, 8)])
+    padded = [np.pad(p, ((0, 0), (0, 5)))[:, : p.shape[1]] for p in (luma, cb, cr)]
+    flipped = [np.ascontiguousarray(p[::-1, ::-1])[::-1, ::-1] for p in (luma, cb, cr)]
+    encoding = YuvEncoding("bt709", full_range=False)
+    cx, cy = np.array([0, 15, 7, 3]), np.array([0, 11, 5, 9])
+    expected = extract_patches(Frame(0, luma, cb, cr, encoding), cx, cy, 5)
+    for planes in (padded, flipped):
+        assert not planes[0].flags.c_contiguous
+        frame = Frame(0, *planes, encoding)
+        np.testing.assert_array_equal(extract_patches(frame, cx, cy, 5), expected)
+
+
 @pytest.mark.parametrize(
     ("encoding", "yuv", "rgb"),
     [
