@@ -100,6 +100,6 @@ class BrightHistory:
         # One flat gather: fancy indexing of three axes of the history costs 3 times more.
         pixel = (r * width + c).ravel()
         past = self._frames.reshape(len(self._index), -1)[slots[:, None], pixel]
-        past = past.reshape(len(slots), len(rows), -1).max(axis=2)  # (S, N)
+        past = past.reshape(len(slots), len(rows), len(_NEIGHBOURS)).max(axis=2)  # (S, N)
         level = image[r, c].max(axis=1).astype(np.float32) - np.float32(self._margin)
         return np.asarray((past >= level).mean(axis=0), np.float32)

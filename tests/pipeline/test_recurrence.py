@@ -30,6 +30,8 @@ def test_a_spot_lit_again_and_again_recurs_and_a_fresh_one_does_not() -> None:
     share = history.recurrence(120, now, np.array([10, 30]), np.array([20, 60]))
     assert 0.4 <= share[0] <= 0.6  # within the 3 × 3 neighbourhood, half the window
     assert share[1] == 0.0
+    none = np.zeros(0, np.intp)
+    assert history.recurrence(120, now, none, none).shape == (0,)  # a frame without candidates
 
 
 def test_beside_a_static_light_only_a_flash_brighter_than_it_is_new() -> None:
