@@ -8,6 +8,7 @@ reductions over the labels.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, fields
 from typing import Self
 
@@ -21,13 +22,16 @@ from scipy.spatial import cKDTree
 _FORWARD_NEIGHBOURS = np.array([(0, 1), (1, -1), (1, 0), (1, 1)])
 
 
+@functools.cache
 def _window(radius: int) -> NDArray[np.intp]:
     """Offsets ``(dr, dc)`` of a square window of half side `radius` but its centre, in
-    raster order."""
+    raster order (built once per radius: every frame asks for it)."""
     offsets = np.arange(-radius, radius + 1)
     dr, dc = (a.ravel() for a in np.meshgrid(offsets, offsets, indexing="ij"))
     centre = (dr == 0) & (dc == 0)
-    return np.column_stack([dr[~centre], dc[~centre]])
+    window = np.column_stack([dr[~centre], dc[~centre]])
+    window.flags.writeable = False  # shared by every caller
+    return window
 
 
 @dataclass(frozen=True)
