@@ -133,7 +133,7 @@ class TrackingStats:
     dropped_over_cap : int
         Blobs beyond ``max_candidates_per_frame``.
     flooded_frames : int
-        Frames with more than ``max_foreground_px`` candidate pixels.
+        Frames with more candidate pixels than `TrackingParams.max_foreground_px`.
     faint_peaks : int
         Faint peaks returned (between ``lit_threshold`` and ``threshold``).
     faint_over_cap : int
@@ -262,6 +262,11 @@ def _opencv_threads(n: int) -> Iterator[None]:
 
 # -- per-frame detection --------------------------------------------------------------
 
+#: Share of a frame's pixels above the extent level from which it is flooded (by
+#: default, `TrackingParams.max_foreground_px` None): a guard against a frame flooded by
+#: light (a flashlight in the lens), scaled with the frame so that grain never reaches it.
+FLOOD_SHARE = 0.25
+
 
 class _FrameDetector:
     """Background lanes + matched filter + noise-scaled hysteresis, frame after frame."""
@@ -296,6 +301,11 @@ class _FrameDetector:
         # Binned luminance of this frame and the last, in turn (`recurrence` reads the
         # last frame processed after `process` returns).
         self._small = np.empty((2, *self._binned), np.uint8)
+        # Candidate pixels labelled per frame, in (binned) pixels analysed.
+        if params.max_foreground_px is None:
+            self._flood_limit = int(self._binned[0] * self._binned[1] * FLOOD_SHARE)
+        else:
+            self._flood_limit = max(1, params.max_foreground_px // self._bin**2)
         self._dropped_by_area = 0
         self._dropped_over_cap = 0
         self._faint_over_cap = 0
@@ -396,8 +406,8 @@ class _FrameDetector:
     def _limit_pixels(
         self, idx: NDArray[np.intp], snr: NDArray[np.float64]
     ) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
-        """In a flooded frame, only the ``max_foreground_px`` pixels of highest SNR."""
-        limit = max(1, self._params.max_foreground_px // self._bin**2)
+        """In a flooded frame, only the `_flood_limit` pixels of highest SNR."""
+        limit = self._flood_limit
         if len(idx) <= limit:
             return idx, snr
         self._flooded += 1

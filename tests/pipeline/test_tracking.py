@@ -420,6 +420,25 @@ def test_flooded_frame_is_capped_and_counted(tmp_path: Path) -> None:
     assert result.stats.frames == 9 and result.stats.candidates == len(result.detections)
 
 
+@pytest.mark.parametrize(("rows", "flooded"), [(400, 1), (120, 0)])
+def test_by_default_a_frame_floods_when_a_quarter_of_it_is_lit(
+    tmp_path: Path, rows: int, flooded: int
+) -> None:
+    # A 1280 × 640 recording analysed in 2 × 2 bins (640 × 320 of them), half the
+    # pixels of an 800-column band lit at random: 400 rows light most of 80,000 bins,
+    # over a quarter of the frame; 120 rows light ~24,000 bins, which the fixed guard
+    # this replaced (50,000 pixels of the recording, 12,500 bins) called flooded, as it
+    # did every frame of a simulated grainy 4K night.
+    height, width = 2 * H, 2 * W
+    rng = np.random.default_rng(5)
+    still = vf.gaussian_spots(height, width, [640.8], [321.2], [150.0], 2.0, BACKGROUND)
+    lit = still.copy()
+    lit[100 : 100 + rows, 200:1000] = rng.choice([20, 255], (rows, 800)).astype(np.uint8)
+    info = probe_video([vf.write_video(tmp_path / "lit.mp4", [*[still] * 5, lit], crf=8)])
+    params = FAST.model_copy(update={"bin_px": 2})
+    assert track_with_stats(info, params=params).stats.flooded_frames == flooded
+
+
 def test_blobs_outside_the_area_bounds_are_dropped(tmp_path: Path) -> None:
     big = np.full((H, W), BACKGROUND, np.uint8)
     big[100:110, 200:210] = 230  # 100 px: a lamp-sized blob
