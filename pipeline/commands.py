@@ -51,7 +51,7 @@ def _add_parameter_options(parser: argparse.ArgumentParser, *, tracking: bool) -
             "--threshold",
             type=float,
             help="tracking seed level in units of the noise sigma of the matched-filtered "
-            "foreground (default 4)",
+            "foreground (default 4; 4.85 when binned, at 4K and up)",
         )
         group.add_argument("--model", help="ONNX flash classifier (default: the shipped model)")
         group.add_argument("--model-card", help="model card JSON (default: beside the model)")

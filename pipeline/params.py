@@ -17,6 +17,13 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 #: Largest camera separation accepted, in metres (volunteer rigs are 1–2 m).
 MAX_SEPARATION_M = 100.0
 
+#: Default seed level of tracking in σ (`TrackingParams.threshold`), unbinned and binned.
+SEED_LEVEL = 4.0
+BINNED_SEED_LEVEL = 4.85
+#: Default level of faint peaks in σ (`TrackingParams.lit_threshold`), unbinned and binned.
+LIT_LEVEL = 3.0
+BINNED_LIT_LEVEL = 4.1
+
 
 def validate_separation(separation_m: float) -> None:
     """Refuse a camera separation (metres) that cannot be a real measurement.
@@ -50,17 +57,22 @@ class TrackingParams(BaseModel):
         description="'ewma': exponentially weighted mean over τ (restarted on a block grid, "
         "see block_s); 'box': mean of the frames in the preceding τ (memory: τ·fps frames).",
     )
-    threshold: float = Field(
-        default=4.0,
+    threshold: float | None = Field(
+        default=None,
         gt=0,
         le=1000,
         description="Seed level of a candidate, in units of the noise σ of the matched-"
         "filtered foreground (frame − background, see matched_sigma_px), estimated per "
         "tile as the background runs (pipeline.noise): a candidate is a local maximum "
-        "reaching it. Chosen on a measured curve (docs/detection.md; simulated hard night, "
-        "640 px, seed 11): candidate recall of flash-frames of simulated SNR >= 5 is 0.98 "
-        "at 3σ (120 candidates per frame), 0.96 at 4σ (20), 0.93 at 5σ (3) and 0.90 at 6σ "
-        "(1). 4σ is the knee; the acceptance stage rejects the noise it lets in.",
+        "reaching it. None: `SEED_LEVEL` (4σ) unbinned, `BINNED_SEED_LEVEL` (4.85σ) when "
+        "the foreground is binned (bin_px ≥ 2, 4K and up). Unbinned, chosen on a measured "
+        "curve (docs/detection.md; simulated hard night, 640 px, seed 11): candidate "
+        "recall of flash-frames of simulated SNR >= 5 is 0.98 at 3σ (120 candidates per "
+        "frame), 0.96 at 4σ (20), 0.93 at 5σ (3) and 0.90 at 6σ (1); 4σ is the knee, the "
+        "acceptance stage rejects the noise it lets in. Binned, the filter is matched to a "
+        "spot of matched_sigma_px recording pixels, half a bin, which meets more noise "
+        "peaks: 4.85σ holds the candidate rate of a 1-bin filter at 4σ (3840 px, tuning "
+        "seed 12: 171/161 against 178/192 per frame on a still night).",
     )
     extent_threshold: float = Field(
         default=2.5,
@@ -70,16 +82,19 @@ class TrackingParams(BaseModel):
         "σ (at most `threshold`), so a flash's faint rim joins its core.",
     )
     lit_threshold: float | None = Field(
-        default=3.0,
+        default=None,
         gt=0,
         le=1000,
-        description="Local maxima from this many σ up to `threshold` are kept as faint "
+        description="Local maxima from this many σ up to the seed level are kept as faint "
         "peaks (frame, position, SNR; never classified, never flashes themselves): the "
         "acceptance stage counts them as lit frames of a spot's light curve (a glint held "
         "by the wind between its brighter moments stays lit for seconds, a flash does not; "
-        "they are not counted as flicker). Below extent_threshold it is extent_threshold. "
-        "None or at least "
-        "`threshold`: none kept. Tuning nights (640 px, seeds 12-15, both cameras): in wind "
+        "they are not counted as flicker). Below extent_threshold it is extent_threshold; "
+        "at least the seed level: none kept. None: `LIT_LEVEL` (3σ) unbinned, "
+        "`BINNED_LIT_LEVEL` (4.1σ) binned, where the narrower filter meets more noise "
+        "peaks (4.1σ there is as rare as 3σ unbinned for Gaussian noise; tuning seed 12 at "
+        "3840 px, hard-all night: 2D precision 0.82/0.87 at 3σ, 0.93/0.96 at 4.1σ, for the "
+        "same recall). Tuning nights (640 px, seeds 12-15, both cameras): in wind "
         "false flashes 182 -> 86 for true ones 2,836 -> 2,804; still and hard-all nights "
         "+3 and +9 true, no false one added (docs/detection.md).",
     )
@@ -101,8 +116,9 @@ class TrackingParams(BaseModel):
         default=1.0,
         ge=0,
         le=10,
-        description="σ of the Gaussian matched filter in (binned) pixels: the size of a "
-        "point flash's spot; 0 disables it.",
+        description="σ of the Gaussian matched filter in pixels of the recording: the size "
+        "of a point flash's spot (real GoPro 360 flashes: 1.2–1.9 px); 0 disables it. On a "
+        "binned foreground it is σ / bin_px bins.",
     )
     bin_px: int | None = Field(
         default=None,
@@ -186,11 +202,24 @@ class TrackingParams(BaseModel):
         description="EWMA warm-up before each block, in units of tau_s.",
     )
 
+    def seed_level(self, bin_px: int) -> float:
+        """The seed level in σ on a foreground binned ``bin_px × bin_px``."""
+        if self.threshold is not None:
+            return self.threshold
+        return SEED_LEVEL if bin_px == 1 else BINNED_SEED_LEVEL
+
+    def lit_level(self, bin_px: int) -> float:
+        """The level of faint peaks in σ on a foreground binned ``bin_px × bin_px``."""
+        if self.lit_threshold is not None:
+            return self.lit_threshold
+        return LIT_LEVEL if bin_px == 1 else BINNED_LIT_LEVEL
+
     @model_validator(mode="after")
     def _consistent(self) -> TrackingParams:
-        if self.extent_threshold > self.threshold:
+        lowest = SEED_LEVEL if self.threshold is None else self.threshold
+        if self.extent_threshold > lowest:
             raise ValueError(
-                f"extent_threshold ({self.extent_threshold}) exceeds threshold ({self.threshold})"
+                f"extent_threshold ({self.extent_threshold}) exceeds the seed level ({lowest:g})"
             )
         if self.max_area < self.min_area:
             raise ValueError(f"max_area ({self.max_area}) is below min_area ({self.min_area})")
@@ -309,6 +338,14 @@ class PoseParams(BaseModel):
         ge=1,
         le=20,
         description="Refits on inliers, stopped early when the inlier set is stable.",
+    )
+    min_agreement: float = Field(
+        default=0.2,
+        ge=0,
+        le=1,
+        description="Fewest inliers as a share of the pairs: below it the pairs are taken "
+        "as unrelated and no pose is fitted. Unrelated pairs agree by chance in 4–9 % "
+        "(synthetic, 200–600 pairs); pairs that are half mismatched keep 45–50 %.",
     )
     min_inlier_fraction: float = Field(
         default=0.5,

@@ -20,11 +20,14 @@ non-linear least squares on how far the rays miss each other:
 * starts: ``R = I`` with ``t̂`` along ``x`` and ``y`` (side-by-side set-ups; the sign is
   decided by cheirality, so ``±`` are the same start) and the essential-matrix
   solution of the linear 8-point algorithm on bearings;
-* outliers (two different fireflies) are handled by a soft-L1 loss whose scale
+* outliers (two different fireflies) are handled by a Cauchy loss whose scale
   shrinks from 10° to ``min_threshold_deg`` (graduated non-convexity, which widens the
   starts' basins), then an explicit, noise-adaptive inlier threshold and a plain
-  least-squares refit on the inliers. On synthetic pairs this holds up to about 50 %
-  mismatched pairs; beyond that the pose is unreliable (and a warning says so).
+  least-squares refit on the inliers. The loss grows only logarithmically, so a few
+  pairs 10° off cannot outweigh many that fit to 0.05°: a soft-L1 loss (growing as the
+  residual) preferred a pose 10° off on a simulated 4K wind night whose 66 pairs held 5
+  such outliers. On synthetic pairs this holds up to about 50 % mismatched pairs; beyond
+  that the pose is unreliable (and a warning says so).
 
 ``R`` is parameterised by a rotation vector applied to the start rotation and ``t̂`` by
 a 2-vector in the plane orthogonal to the start translation, so neither has a
@@ -33,6 +36,7 @@ singularity near the start.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -55,6 +59,8 @@ _MAD_TO_SIGMA = 1.4826
 _GRADUATED_SCALES_DEG = (10.0, 3.0, 1.0)
 #: Evaluation budget of each graduated step: a start in the wrong basin stops early.
 _START_NFEV = 100
+#: `scipy.optimize.least_squares` loss of the starts and the first fit on all pairs.
+_ROBUST_LOSS = "cauchy"
 #: Central-difference step of `pose_covariance` (radians, ~0.0006°): small
 #: against good fits' residuals (~0.03°) so the gaps' kink at zero barely matters.
 _JACOBIAN_STEP_RAD = 1e-5
@@ -212,7 +218,7 @@ def estimate_pose(
         essential_matrix_pose(s1, s2),
     ]
     fits = [_graduated_fit(s1, s2, start, scale) for start in starts]
-    pose = _fit(b1, b2, min(fits, key=lambda fit: fit[1])[0], loss="soft_l1", scale=scale)[0]
+    pose = _fit(b1, b2, min(fits, key=lambda fit: fit[1])[0], loss=_ROBUST_LOSS, scale=scale)[0]
     threshold = _threshold(normalised_gap(closest_approach(b1, b2, pose)), params)
     pose = _in_front(b1, b2, pose, threshold)
     inliers = _inlier_mask(closest_approach(b1, b2, pose), threshold)
@@ -271,7 +277,7 @@ def _graduated_fit(b1: FloatArray, b2: FloatArray, start: Pose, floor: float) ->
     scales = [s for s in np.radians(_GRADUATED_SCALES_DEG) if s > floor] + [floor]
     pose, cost = start, np.inf
     for scale in scales:
-        pose, cost = _fit(b1, b2, pose, loss="soft_l1", scale=scale, max_nfev=_START_NFEV)
+        pose, cost = _fit(b1, b2, pose, loss=_ROBUST_LOSS, scale=scale, max_nfev=_START_NFEV)
     return pose, cost
 
 
@@ -437,10 +443,12 @@ def _in_front(b1: FloatArray, b2: FloatArray, pose: Pose, threshold: float) -> P
 
 
 def _require_inliers(inliers: BoolArray, threshold: float, params: PoseParams) -> None:
-    if inliers.sum() < params.min_pairs:
+    # Below a share of the pairs, the agreement is what unrelated pairs find by chance.
+    needed = max(params.min_pairs, math.ceil(params.min_agreement * len(inliers)))
+    if inliers.sum() < needed:
         raise PoseError(
             f"only {int(inliers.sum())} of {len(inliers)} calibration pairs agree on a pose "
-            f"(threshold {np.degrees(threshold):.2f}°); at least {params.min_pairs} needed"
+            f"(threshold {np.degrees(threshold):.2f}°); at least {needed} needed"
         )
 
 

@@ -5,15 +5,16 @@ For every frame ``k`` of a camera, with luminance ``Y_k`` (0–255):
 1. ``Y_k`` averaged over ``b × b`` bins at high resolution (2 × 2 at 4K), and the
    foreground ``F_k = Y_k − B_k`` (signed), where the background ``B_k`` is built from
    frames before ``k`` only, so a flash does not dim itself (`pipeline.background`);
-2. the matched filter: ``F_k`` filtered with a Gaussian the size of a point flash
-   (`pipeline.matched_filter`);
+2. the matched filter: ``F_k`` filtered with a Gaussian the size of a point flash in
+   pixels of the recording (`pipeline.matched_filter`);
 3. the noise ``σ`` of the filtered foreground per tile, running over the last ``τ`` of
    frames and measured on its negative half, which flashes cannot inflate
    (`pipeline.noise`), floored per pixel at ``min_noise + relative_noise · B`` (a
    bright static light jitters more than the dark sky around it);
 4. hysteresis in units of ``σ``: 8-connected blobs of the pixels above
    ``extent_threshold · σ`` (the 360° seam included: column ``W − 1`` touches column 0);
-   each local maximum reaching ``threshold · σ`` is a candidate, and a blob holding
+   each local maximum reaching the seed level (``threshold · σ``, higher when binned:
+   `TrackingParams.seed_level`) is a candidate, and a blob holding
    several is split between them (one larger than ``max_area`` is dropped whole); the
    local maxima from ``lit_threshold · σ`` up to the seed level are kept apart as faint
    peaks (frame, position, SNR): they are no candidates and split no blob, but tell the
@@ -291,9 +292,12 @@ class _FrameDetector:
         )
         self._last = (-1, np.zeros(self._binned, np.uint8))  # index and binned luminance
         self._mask = np.empty(self._binned, np.bool_)
-        radius = max(1, math.ceil(2 * params.matched_sigma_px))  # of a local maximum
+        self._sigma = params.matched_sigma_px / self._bin  # in bins
+        self._threshold = params.seed_level(self._bin)
+        self._lit = params.lit_level(self._bin)
+        radius = max(1, math.ceil(2 * self._sigma))  # of a local maximum
         self._pixels = PixelIndex(self._binned, min(radius, self._binned[1]))
-        self._ring_px = max(radius + 1, math.ceil(3 * params.matched_sigma_px))
+        self._ring_px = max(radius + 1, math.ceil(3 * self._sigma))
         # The foreground and its filtered image, reused by every lane and frame: a fresh
         # pair per frame costs the kernel ~2,000 page faults a frame at 4K.
         self._foreground = np.empty(self._binned, np.float32)
@@ -319,7 +323,7 @@ class _FrameDetector:
         for lane, tracks in self._lanes.at(frame.index):
             foreground = lane.background.foreground(small, self._foreground)
             if foreground is not None:
-                filtered = matched_filter(foreground, self._params.matched_sigma_px, self._filtered)
+                filtered = matched_filter(foreground, self._sigma, self._filtered)
                 if frame.index % SAMPLE_EVERY == 0 or lane.noise.frames == 0:
                     lane.noise.update(filtered)
                 if tracks and frame.index >= self._start:
@@ -442,8 +446,8 @@ class _FrameDetector:
         too_large = area > self._params.max_area
         self._dropped_by_area += int(np.count_nonzero(too_large))
         in_glow = too_large[blobs]
-        threshold = self._params.threshold
-        lowest = min(threshold, self._params.lit_threshold or threshold)
+        threshold = self._threshold
+        lowest = min(threshold, self._lit)
         tested = np.where(in_glow, snr >= threshold, snr >= lowest)
         maxima = local_maxima(self._pixels, snr, self._pixels.margin, tested)
         glow_maxima = np.flatnonzero(maxima & in_glow)
@@ -467,7 +471,7 @@ class _FrameDetector:
             return np.zeros(0, bool)
         centre = filtered.ravel()[idx].astype(np.float64)
         ring = ring_max(filtered, idx, self._ring_px)
-        return np.asarray(snr * (1.0 - ring / centre) >= self._params.threshold)
+        return np.asarray(snr * (1.0 - ring / centre) >= self._threshold)
 
     def _own_spots(
         self,

@@ -15,7 +15,13 @@ from pydantic import ValidationError
 
 from pipeline.chunking import chunk_ranges, frames_read
 from pipeline.detections import Detections
-from pipeline.params import TrackingParams
+from pipeline.params import (
+    BINNED_LIT_LEVEL,
+    BINNED_SEED_LEVEL,
+    LIT_LEVEL,
+    SEED_LEVEL,
+    TrackingParams,
+)
 from pipeline.probe import VideoInfo
 from pipeline.tracking import (
     CLASSIFY_BATCH,
@@ -210,7 +216,7 @@ def test_a_switched_on_lamp_fades_into_the_ewma_with_time_constant_tau(
     assert seen[0] == 45 and np.all(np.diff(seen) == 1)
     # Its foreground (and SNR S) decays as exp(-n / (τ fps)): seen while S > threshold.
     snr = detections.snr[_near(detections, *scene["switched"]) & (detections.frame == 45)]
-    expected = math.floor(params.tau_s * FPS * math.log(snr[0] / params.threshold)) + 1
+    expected = math.floor(params.tau_s * FPS * math.log(snr[0] / params.seed_level(1))) + 1
     assert abs(len(seen) - expected) <= 2
 
 
@@ -226,7 +232,7 @@ def test_a_switched_on_lamp_leaves_the_box_mean_after_a_fraction_of_tau(
     # m < L (1 − threshold / S).
     box = round(params.tau_s * FPS)
     snr = detections.snr[_near(detections, *scene["switched"]) & (detections.frame == 45)]
-    expected = math.ceil(box * (1 - params.threshold / snr[0]))
+    expected = math.ceil(box * (1 - params.seed_level(1) / snr[0]))
     assert abs(len(seen) - expected) <= 2
 
 
@@ -392,7 +398,7 @@ def test_spots_between_the_lit_and_seed_levels_are_faint_peaks(tmp_path: Path) -
     assert faint.frame[0] == 10 and 3.0 <= faint.snr[0] < 4.0
     assert np.isnan(faint.flash_probability[0])
     # Faint peaks are kept apart: without them the candidates are the same.
-    off = track_with_stats(info, params=fixed.model_copy(update={"lit_threshold": None}))
+    off = track_with_stats(info, params=fixed.model_copy(update={"lit_threshold": 4.0}))
     assert len(off.faint_peaks) == 0
     _assert_same_rows(off.detections, result.detections)
     # A lower seed level makes the faint spot a candidate; its faint peak is gone.
@@ -437,6 +443,28 @@ def test_by_default_a_frame_floods_when_a_quarter_of_it_is_lit(
     info = probe_video([vf.write_video(tmp_path / "lit.mp4", [*[still] * 5, lit], crf=8)])
     params = FAST.model_copy(update={"bin_px": 2})
     assert track_with_stats(info, params=params).stats.flooded_frames == flooded
+
+
+def test_binned_the_filter_stays_matched_to_spots_of_a_pixel(tmp_path: Path) -> None:
+    # 4K spots are 1–2 px wide, so the filter stays matched in pixels of the recording
+    # when the foreground is binned: spots of σ 0.7 px peaking at 7 σ of white sensor
+    # noise reach the binned seed level (a filter of one bin, 2 px, found half of them).
+    height, width, noise = 2 * H, 2 * W, 3.0
+    rng = np.random.default_rng(11)
+    u, v = np.meshgrid(np.arange(10) * 128.0 + 40.3, np.arange(6) * 80.0 + 120.6)
+    frames = BACKGROUND + 10.0 + rng.normal(0.0, noise, (16, height, width))
+    spots = vf.gaussian_spots(
+        height, width, u.ravel(), v.ravel(), [7 * noise] * u.size, 0.7, frames[-1]
+    )
+    pictures = [*np.clip(np.rint(frames[:-1]), 0, 255).astype(np.uint8), spots]
+    info = probe_video([vf.write_video(tmp_path / "small.mp4", pictures, crf=0)])
+    found = track_with_stats(info, params=FAST.model_copy(update={"bin_px": 2})).detections
+    lit = found.select(found.frame == 15)
+    gap = np.hypot(u.reshape(-1, 1) - lit.x, v.reshape(-1, 1) - lit.y)
+    assert np.count_nonzero(gap.min(axis=1) < 1.0) >= 0.95 * u.size
+    # The seed level is raised with it: noise makes a few candidates a frame, not tens.
+    noise_candidates = len(found) - np.count_nonzero(gap.min(axis=0) < 1.0)
+    assert noise_candidates <= 10 * len(frames)
 
 
 def test_blobs_outside_the_area_bounds_are_dropped(tmp_path: Path) -> None:
@@ -484,5 +512,15 @@ def test_parameters_are_validated() -> None:
         TrackingParams(tau_s=20.0, block_s=30.0)
     with pytest.raises(ValidationError, match="extent_threshold"):
         TrackingParams(threshold=3.0, extent_threshold=4.0)
+    with pytest.raises(ValidationError, match="extent_threshold"):
+        TrackingParams(extent_threshold=4.5)  # above the unbinned seed level
     with pytest.raises(ValidationError, match="tau"):
         TrackingParams(tau=2.0)  # type: ignore[call-arg]
+
+
+def test_the_default_levels_depend_on_the_binning_and_overrides_do_not() -> None:
+    default = TrackingParams()
+    assert (default.seed_level(1), default.lit_level(1)) == (SEED_LEVEL, LIT_LEVEL)
+    assert (default.seed_level(2), default.lit_level(3)) == (BINNED_SEED_LEVEL, BINNED_LIT_LEVEL)
+    chosen = TrackingParams(threshold=6.0, lit_threshold=3.5)
+    assert (chosen.seed_level(2), chosen.lit_level(2)) == (6.0, 3.5)
