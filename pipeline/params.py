@@ -25,6 +25,13 @@ LIT_LEVEL = 3.0
 BINNED_LIT_LEVEL = 4.1
 
 
+def _level(chosen: float | None, unbinned: float, binned: float, bin_px: int) -> float:
+    """A level in σ: the one chosen, else the default of a binned foreground or not."""
+    if chosen is not None:
+        return chosen
+    return unbinned if bin_px == 1 else binned
+
+
 def validate_separation(separation_m: float) -> None:
     """Refuse a camera separation (metres) that cannot be a real measurement.
 
@@ -204,15 +211,11 @@ class TrackingParams(BaseModel):
 
     def seed_level(self, bin_px: int) -> float:
         """The seed level in σ on a foreground binned ``bin_px × bin_px``."""
-        if self.threshold is not None:
-            return self.threshold
-        return SEED_LEVEL if bin_px == 1 else BINNED_SEED_LEVEL
+        return _level(self.threshold, SEED_LEVEL, BINNED_SEED_LEVEL, bin_px)
 
     def lit_level(self, bin_px: int) -> float:
         """The level of faint peaks in σ on a foreground binned ``bin_px × bin_px``."""
-        if self.lit_threshold is not None:
-            return self.lit_threshold
-        return LIT_LEVEL if bin_px == 1 else BINNED_LIT_LEVEL
+        return _level(self.lit_threshold, LIT_LEVEL, BINNED_LIT_LEVEL, bin_px)
 
     @model_validator(mode="after")
     def _consistent(self) -> TrackingParams:
