@@ -219,7 +219,7 @@ class TrackingParams(BaseModel):
 
     @model_validator(mode="after")
     def _consistent(self) -> TrackingParams:
-        lowest = SEED_LEVEL if self.threshold is None else self.threshold
+        lowest = self.seed_level(1)  # the lower of the two defaults
         if self.extent_threshold > lowest:
             raise ValueError(
                 f"extent_threshold ({self.extent_threshold}) exceeds the seed level ({lowest:g})"
