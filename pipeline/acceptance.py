@@ -51,7 +51,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from pipeline.detections import Detections
-from pipeline.flicker import flicker_duty, flickering, spot_tree
+from pipeline.flicker import candidate_duty, flickering, spot_tree
 from pipeline.geometry import Pose
 from pipeline.params import AcceptanceParams, FlickerParams, TriangulationParams
 from pipeline.refine import refine_positions
@@ -265,15 +265,7 @@ def assess(
         likely = probability >= threshold
     verdict = np.where(likely & snr_ok, Verdict.CONFIDENT, Verdict.DOUBTFUL)
     verdict = np.where(unlikely, Verdict.CLASSIFIER, verdict)
-    duty = flicker_duty(
-        candidates.frame,
-        candidates.x,
-        candidates.y,
-        width,
-        fps,
-        flicker.radius_deg,
-        flicker.window_s,
-    )
+    duty = candidate_duty(candidates, width, fps, flicker)
     verdict = np.where(flickering(duty, flicker), Verdict.FLICKER, verdict)
     # A spot lit without a break also flickers by the duty measure; say the specific why.
     verdict = np.where(lit > params.max_flash_s * fps, Verdict.STEADY, verdict)

@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 
 from pipeline.acceptance import Evidence, Verdict, light_curve_pairs, steady_frames
 from pipeline.detections import Detections
-from pipeline.flicker import flicker_duty, spot_tree
+from pipeline.flicker import candidate_duty, spot_tree
 from pipeline.geometry import Pose
 from pipeline.params import FlickerParams, TriangulationParams
 from pipeline.triangulate import triangulate
@@ -181,9 +181,7 @@ def _own_features(
     np.fmax.at(peak_probability, ev.chain, probability)
     duty = ev.flicker_duty
     if duty is None:  # not measured by the merge stage
-        duty = flicker_duty(
-            det.frame, det.x, det.y, width, fps, flicker.radius_deg, flicker.window_s
-        )
+        duty = candidate_duty(det, width, fps, flicker)
     verdicts = np.eye(len(Verdict))[ev.verdict]
     revisits = _spot_revisits(det, ev.chain, width, fps)
     with np.errstate(divide="ignore", invalid="ignore"):

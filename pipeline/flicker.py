@@ -10,7 +10,12 @@ a leaf looks like a flash), so this temporal test complements it.
 
 The *duty* of a candidate is the number of candidates (its own included) within
 ``radius_deg`` of its pixel, horizontally wrapping across the 360° seam, in the
-``window_s`` centred on its frame, divided by the frames in that window.
+``window_s`` centred on its frame, divided by the frames in that window. Only
+neighbours about as bright as the candidate count (`FlickerParams.peer_octaves`): a
+flickering source relights its spot as brightly as it lit it, while the grain and
+foliage candidates around a bright flash are faint. Their density grows with the
+resolution (a box of 3° holds 30 times the pixels at 5.7K that it holds at 640 px), and
+counted at any brightness they made bright flashes in a wind-swayed band "flicker".
 """
 
 from __future__ import annotations
@@ -19,7 +24,11 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from pipeline.detections import Detections
 from pipeline.params import FlickerParams
+
+#: SNRs are compared on a grid of this many octaves (`flicker_duty`'s ``peer_octaves``).
+OCTAVE_STEP = 0.5
 
 
 def flicker_duty(
@@ -30,6 +39,8 @@ def flicker_duty(
     fps: float,
     radius_deg: float = 1.5,
     window_s: float = 2.0,
+    snr: NDArray[np.floating] | None = None,
+    peer_octaves: float | None = None,
 ) -> NDArray[np.float64]:
     """How often each candidate's spot lights up around its frame.
 
@@ -47,6 +58,12 @@ def flicker_duty(
         Half side of the square neighbourhood, in degrees (``width / 360`` px per degree).
     window_s
         Length of the time window centred on each candidate's frame, in seconds.
+    snr, peer_octaves
+        (N,) SNR of each candidate, and how many octaves fainter than a candidate a
+        neighbour may be and still count. SNRs are compared on a grid of
+        `OCTAVE_STEP` octaves, so 1 octave counts the neighbours from 1/2–1/2.8 of the
+        candidate's SNR up. None (either): every neighbour counts; a NaN SNR counts as
+        a neighbour of every candidate and has every candidate as its neighbour.
 
     Returns
     -------
@@ -57,9 +74,46 @@ def flicker_duty(
     if n == 0:
         return np.zeros(0)
     half = max(1, round(window_s * fps / 2))
-    tree = spot_tree(np.asarray(frame, dtype=np.float64) / half, x, y, width, radius_deg)
-    counts = tree.query_ball_point(tree.data, r=1.0, p=np.inf, return_length=True)
-    return np.asarray(counts, dtype=np.float64) / (2 * half + 1)
+    points, box = _spot_points(np.asarray(frame, dtype=np.float64) / half, x, y, width, radius_deg)
+    counts = np.zeros(n)
+    for query, peers in _peer_groups(snr, peer_octaves, n):
+        tree = cKDTree(points[peers], boxsize=box)
+        counts[query] = tree.query_ball_point(points[query], r=1.0, p=np.inf, return_length=True)
+    return counts / (2 * half + 1)
+
+
+def candidate_duty(
+    candidates: Detections, width: int, fps: float, params: FlickerParams
+) -> NDArray[np.float64]:
+    """`flicker_duty` of one camera's candidates with the parameters of a run."""
+    return flicker_duty(
+        candidates.frame,
+        candidates.x,
+        candidates.y,
+        width,
+        fps,
+        params.radius_deg,
+        params.window_s,
+        candidates.snr,
+        params.peer_octaves,
+    )
+
+
+def _peer_groups(
+    snr: NDArray[np.floating] | None, peer_octaves: float | None, n: int
+) -> list[tuple[NDArray[np.bool_], NDArray[np.bool_]]]:
+    """(candidates queried, the candidates they count) for each level of SNR."""
+    everyone = np.ones(n, dtype=bool)
+    if snr is None or peer_octaves is None:
+        return [(everyone, everyone)]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        level = np.floor(np.log2(np.asarray(snr, dtype=np.float64)) / OCTAVE_STEP)
+    reach = round(peer_octaves / OCTAVE_STEP)
+    known = np.isfinite(level)
+    groups = [(level == value, ~(level < value - reach)) for value in np.unique(level[known])]
+    if not known.all():
+        groups.append((~known, everyone))
+    return groups
 
 
 def spot_tree(
@@ -82,6 +136,18 @@ def spot_tree(
     radius_deg : float
         Spatial radius in degrees (``width / 360`` pixels per degree).
     """
+    points, box = _spot_points(t, x, y, width, radius_deg)
+    return cKDTree(points, boxsize=box)
+
+
+def _spot_points(
+    t: NDArray[np.floating],
+    x: NDArray[np.floating],
+    y: NDArray[np.floating],
+    width: int,
+    radius_deg: float,
+) -> tuple[NDArray[np.float64], list[float]]:
+    """`spot_tree`'s points (N, 3) and the periodic box they live in."""
     radius_px = radius_deg * width / 360.0
     period = width / radius_px
     u = np.minimum(
@@ -91,7 +157,7 @@ def spot_tree(
     v = v - v.min()
     # Time and y get boxes wider than their range plus the radius, so they never wrap.
     box = [float(np.max(t)) + 2.0, period, float(v.max()) + 2.0]
-    return cKDTree(np.column_stack([np.asarray(t, dtype=np.float64), u, v]), boxsize=box)
+    return np.column_stack([np.asarray(t, dtype=np.float64), u, v]), box
 
 
 def flickering(duty: NDArray[np.floating], params: FlickerParams) -> NDArray[np.bool_]:

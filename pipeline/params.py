@@ -132,7 +132,7 @@ class TrackingParams(BaseModel):
         ge=1,
         le=8,
         description="Side of the bins the foreground is averaged over before filtering; "
-        "None: round(width / 1920) (2 for 4K), where spots span several pixels.",
+        "None: round(width / 1920), at most 2 (matched_filter.MAX_AUTO_BIN; 2 for 4K and up).",
     )
     noise_tile_px: int = Field(
         default=32,
@@ -261,6 +261,17 @@ class FlickerParams(BaseModel):
         le=1,
         description="Candidates per frame in the neighbourhood above which a spot flickers "
         "(flash trains measure <= 0.25; moon-through-leaves 0.5–0.9 in the simulator).",
+    )
+    peer_octaves: float | None = Field(
+        1.0,
+        ge=0,
+        le=20,
+        description="A neighbour counts towards a candidate's duty when its SNR is at most "
+        "this many octaves below the candidate's (compared on a half-octave grid: 1 counts "
+        "from 1/2–1/2.8 of its SNR up); None: every neighbour. Grain and swaying foliage "
+        "make faint candidates everywhere in a 3° box at 4K and up, and counted at any "
+        "brightness they made bright flashes beside them flicker (5.7K, tuning wind night "
+        "s12: 43 and 58 true flash-frames a camera flagged; docs/detection.md).",
     )
 
 

@@ -40,4 +40,5 @@ def test_binning_averages_and_is_chosen_from_the_width() -> None:
     np.testing.assert_array_equal(bin_image(image, 2), [[10, 18], [42, 50]])
     assert bin_image(image, 1) is image
     assert binning(640) == 1 and binning(1280) == 1 and binning(3840) == 2
-    assert binning(5760) == 3 and binning(3840, requested=1) == 1
+    assert binning(5760) == 2 and binning(7680) == 2 and binning(5760, requested=3) == 3
+    assert binning(3840, requested=1) == 1
