@@ -263,15 +263,17 @@ class FlickerParams(BaseModel):
         "(flash trains measure <= 0.25; moon-through-leaves 0.5–0.9 in the simulator).",
     )
     peer_octaves: float | None = Field(
-        1.0,
+        2.0,
         ge=0,
         le=20,
         description="A neighbour counts towards a candidate's duty when its SNR is at most "
-        "this many octaves below the candidate's (compared on a half-octave grid: 1 counts "
-        "from 1/2–1/2.8 of its SNR up); None: every neighbour. Grain and swaying foliage "
-        "make faint candidates everywhere in a 3° box at 4K and up, and counted at any "
-        "brightness they made bright flashes beside them flicker (5.7K, tuning wind night "
-        "s12: 43 and 58 true flash-frames a camera flagged; docs/detection.md).",
+        "this many octaves below the candidate's (compared on a half-octave grid: 2 counts "
+        "from 1/4–1/5.7 of its SNR up); None: every neighbour. Grain and swaying foliage "
+        "make faint candidates all over a 3° box at 4K and up, and counted at any brightness "
+        "they made bright flashes beside them flicker (5376 px tuning wind night s12: 11 and "
+        "13 true flash-frames ≥ 10 σ a camera). 1 octave freed more of them but let "
+        "headlights' and taillights' candidates stop flickering (3840 px hard-all s12: 5 "
+        "more false flashes, 2 with 2 octaves; docs/detection.md).",
     )
 
 
