@@ -14,7 +14,7 @@ The *duty* of a candidate is the number of candidates (its own included) within
 neighbours about as bright as the candidate count (`FlickerParams.peer_octaves`): a
 flickering source relights its spot as brightly as it lit it, while the grain and
 foliage candidates around a bright flash are faint. Their density grows with the
-resolution (a box of 3° holds 30 times the pixels at 5.7K that it holds at 640 px), and
+resolution (a box of 3° holds 70 times the pixels at 5.7K that it holds at 640 px), and
 counted at any brightness they made bright flashes in a wind-swayed band "flicker".
 """
 
