@@ -74,11 +74,11 @@ def flicker_duty(
     if n == 0:
         return np.zeros(0)
     half = max(1, round(window_s * fps / 2))
-    points, box = _spot_points(np.asarray(frame, dtype=np.float64) / half, x, y, width, radius_deg)
+    tree = spot_tree(np.asarray(frame, dtype=np.float64) / half, x, y, width, radius_deg)
     counts = np.zeros(n)
     for query, peers in _peer_groups(snr, peer_octaves, n):
-        tree = cKDTree(points[peers], boxsize=box)
-        counts[query] = tree.query_ball_point(points[query], r=1.0, p=np.inf, return_length=True)
+        sub = tree if peers.all() else cKDTree(tree.data[peers], boxsize=tree.boxsize)
+        counts[query] = sub.query_ball_point(tree.data[query], r=1.0, p=np.inf, return_length=True)
     return counts / (2 * half + 1)
 
 
@@ -136,18 +136,6 @@ def spot_tree(
     radius_deg : float
         Spatial radius in degrees (``width / 360`` pixels per degree).
     """
-    points, box = _spot_points(t, x, y, width, radius_deg)
-    return cKDTree(points, boxsize=box)
-
-
-def _spot_points(
-    t: NDArray[np.floating],
-    x: NDArray[np.floating],
-    y: NDArray[np.floating],
-    width: int,
-    radius_deg: float,
-) -> tuple[NDArray[np.float64], list[float]]:
-    """`spot_tree`'s points (N, 3) and the periodic box they live in."""
     radius_px = radius_deg * width / 360.0
     period = width / radius_px
     u = np.minimum(
@@ -157,7 +145,7 @@ def _spot_points(
     v = v - v.min()
     # Time and y get boxes wider than their range plus the radius, so they never wrap.
     box = [float(np.max(t)) + 2.0, period, float(v.max()) + 2.0]
-    return np.column_stack([np.asarray(t, dtype=np.float64), u, v]), box
+    return cKDTree(np.column_stack([np.asarray(t, dtype=np.float64), u, v]), boxsize=box)
 
 
 def flickering(duty: NDArray[np.floating], params: FlickerParams) -> NDArray[np.bool_]:
