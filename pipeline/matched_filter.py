@@ -24,8 +24,8 @@ from numpy.typing import NDArray
 
 #: Frame width above which the foreground is binned (one bin per this many columns).
 BIN_WIDTH_PX = 1920
-#: Largest automatic bin: a wider one is wider than a spot of 1 px σ. At 5.7K, 3 × 3 bins (a
-#: filter of a third of a bin, none at all) found 0.86/0.95 of the flash-frames ≥ 5 σ
+#: Largest automatic bin; a wider one is wider than a flash's spot (σ ≈ 1 px). At 5.7K, 3 × 3
+#: bins (a filter of a third of a bin, hardly one) found 0.86/0.95 of the flash-frames ≥ 5 σ
 #: of a tuning night (hard-clean s12, 5376 px) against 0.90/0.96 in 2 × 2 bins.
 MAX_AUTO_BIN = 2
 
