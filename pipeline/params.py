@@ -385,6 +385,15 @@ class PoseParams(BaseModel):
         "good fits measured 0.03–0.19°, the four wrong ones (2–28° off, some fitting their "
         "pairs to 0.04–0.09 px) 0.6–9.6°.",
     )
+    onset_radius_deg: float | None = Field(
+        default=1.0,
+        gt=0,
+        le=20,
+        description="Frames where exactly one flash begins in each camera (no flash of the "
+        "previous frame within this angle, degrees) are calibration pairs too, besides the "
+        "frames that hold a single flash: a simulated night of 80 fireflies had 11 single-"
+        "flash frames in 20 s, too few for a pose. None: single-flash frames only.",
+    )
     refit_snr: tuple[float, ...] = Field(
         default=(12.0, 16.0, 24.0),
         description="A fit with warnings (few inliers, or a median residual above "

@@ -1,7 +1,8 @@
 """Spatial calibration: the relative pose of camera 2 from single-flash frames.
 
-In a synchronised frame where each camera sees exactly one flash, the two bearings
-usually belong to the same firefly, so their rays must meet. The pose (unit
+In a synchronised frame where each camera sees exactly one flash, or sees exactly one
+flash begin, the two bearings usually belong to the same firefly, so their rays must
+meet. The pose (unit
 translation ``t̂`` and rotation ``R``, see `pipeline.geometry`) is found by robust
 non-linear least squares on how far the rays miss each other:
 
@@ -46,6 +47,7 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from pipeline.acceptance import spot_chains
 from pipeline.detections import Detections
 from pipeline.geometry import Pose, RayPair, check_width, closest_approach, pixel_to_bearing
 from pipeline.params import PoseParams
@@ -72,7 +74,7 @@ class PoseError(ValueError):
 
 @dataclass(frozen=True)
 class CalibrationPairs:
-    """Bearings of frames where each camera sees exactly one flash.
+    """Bearings of frames where each camera sees exactly one flash (or one begin).
 
     Attributes
     ----------
@@ -144,9 +146,19 @@ class PoseEstimate:
 
 
 def calibration_pairs(
-    det1: Detections, det2: Detections, delay_frames: int, width: int
+    det1: Detections,
+    det2: Detections,
+    delay_frames: int,
+    width: int,
+    onset_radius_deg: float | None = None,
 ) -> CalibrationPairs:
-    """Bearings of the synchronised frames where each camera sees exactly one flash.
+    """Bearings of the synchronised frames where each camera sees exactly one flash, or
+    exactly one flash begin.
+
+    A frame where one flash begins in each camera pairs the two beginnings even when
+    other flashes are lit: in a dense swarm frames with a single flash grow rare (80
+    fireflies in view leave about one such frame a second) while single beginnings
+    stay common.
 
     Parameters
     ----------
@@ -156,6 +168,9 @@ def calibration_pairs(
         ``dk``: camera-1 frame ``k`` is camera-2 frame ``k + dk``.
     width : int
         Frame width in pixels (equirectangular, height ``width / 2``).
+    onset_radius_deg : float or None
+        A flash begins where no flash of the previous frame lies within this angle
+        (`pipeline.acceptance.spot_chains`); None: single-flash frames only.
 
     Returns
     -------
@@ -163,15 +178,45 @@ def calibration_pairs(
         Sorted by camera-1 frame.
     """
     check_width(width)
-    rows1, frames = _single_flash_rows(det1.frame)
-    rows2, frames2 = _single_flash_rows(det2.frame - int(delay_frames))
-    common, i1, i2 = np.intersect1d(frames, frames2, assume_unique=True, return_indices=True)
-    r1, r2 = rows1[i1], rows2[i2]
+    frame2 = det2.frame - int(delay_frames)
+    rows1, rows2, frames = _paired_rows(*_single_rows(det1.frame), *_single_rows(frame2))
+    if onset_radius_deg is not None:
+        rows_b1, frames_b1 = _onset_rows(det1, width, onset_radius_deg)
+        rows_b2, frames_b2 = _onset_rows(det2, width, onset_radius_deg)
+        o1, o2, onset_frames = _paired_rows(
+            rows_b1, frames_b1, rows_b2, frames_b2 - int(delay_frames)
+        )
+        new = ~np.isin(onset_frames, frames)
+        order = np.argsort(np.r_[frames, onset_frames[new]], kind="stable")
+        rows1 = np.r_[rows1, o1[new]][order]
+        rows2 = np.r_[rows2, o2[new]][order]
+        frames = np.r_[frames, onset_frames[new]][order]
     return CalibrationPairs(
-        frame1=common.astype(np.int64),
-        bearing1=pixel_to_bearing(det1.x[r1], det1.y[r1], width),
-        bearing2=pixel_to_bearing(det2.x[r2], det2.y[r2], width),
+        frame1=frames.astype(np.int64),
+        bearing1=pixel_to_bearing(det1.x[rows1], det1.y[rows1], width),
+        bearing2=pixel_to_bearing(det2.x[rows2], det2.y[rows2], width),
     )
+
+
+def _paired_rows(
+    rows1: IntArray, frames1: IntArray, rows2: IntArray, frames2: IntArray
+) -> tuple[IntArray, IntArray, IntArray]:
+    """Rows of both cameras at the frames both have one (frames unique, sorted)."""
+    common, i1, i2 = np.intersect1d(frames1, frames2, assume_unique=True, return_indices=True)
+    return rows1[i1], rows2[i2], common
+
+
+def _onset_rows(det: Detections, width: int, radius_deg: float) -> tuple[IntArray, IntArray]:
+    """Rows and frames of the frames where exactly one flash begins."""
+    frame = det.frame
+    chain = spot_chains(frame, det.x, det.y, width, radius_deg)
+    if len(chain) == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    first = np.full(chain.max() + 1, np.iinfo(np.int64).max)
+    np.minimum.at(first, chain, frame)
+    begins = np.flatnonzero(frame == first[chain])
+    rows, frames = _single_rows(frame[begins])
+    return begins[rows], frames
 
 
 def estimate_pose(
@@ -203,9 +248,9 @@ def estimate_pose(
     if n < params.min_pairs:
         raise PoseError(
             f"only {n} calibration pairs (frames where each camera sees exactly one confident "
-            f"flash); at least {params.min_pairs} are needed to estimate the pose. A longer "
-            "recording gives more; so does a lower acceptance.confident_snr, at some risk of "
-            "artifacts among them"
+            f"flash, or one begin); at least {params.min_pairs} are needed to estimate the "
+            "pose. A longer recording gives more; so does a lower acceptance.confident_snr, at "
+            "some risk of artifacts among them"
         )
     b1, b2 = pairs.bearing1, pairs.bearing2
     scale = np.radians(params.min_threshold_deg)
@@ -585,7 +630,7 @@ def calibrate_pose(
     tried: list[dict[str, Any]] = []
     for min_snr in (None, *params.refit_snr):
         sel1, sel2 = (d if min_snr is None else d.select(d.snr >= min_snr) for d in (det1, det2))
-        pairs = calibration_pairs(sel1, sel2, delay_frames, width)
+        pairs = calibration_pairs(sel1, sel2, delay_frames, width, params.onset_radius_deg)
         try:
             estimate = estimate_pose(pairs, params)
         except PoseError as error:
@@ -625,8 +670,8 @@ def _describe(values: FloatArray, unit: str) -> dict[str, float]:
     }
 
 
-def _single_flash_rows(frames: IntArray) -> tuple[IntArray, IntArray]:
-    """Rows and frames of the frames that hold exactly one detection."""
+def _single_rows(frames: IntArray) -> tuple[IntArray, IntArray]:
+    """Rows and frames of the frames that hold exactly one entry."""
     unique, first, count = np.unique(frames, return_index=True, return_counts=True)
     single = count == 1
     return first[single], unique[single]

@@ -305,7 +305,7 @@ def sync(ctx: StageContext) -> StageResult:
 
 
 def pose(ctx: StageContext) -> StageResult:
-    """Relative pose from frames where each camera sees exactly one flash.
+    """Relative pose from frames where each camera sees exactly one flash (or one begin).
 
     Writes ``calibration.json`` (the delay from ``sync.json`` included); the camera
     height, when known, is recorded there as metadata.

@@ -156,6 +156,29 @@ def test_calibration_pairs_use_single_flash_frames_after_delay() -> None:
     np.testing.assert_allclose(pairs.bearing2, b2[[0, 1, 3]], atol=1e-12)
 
 
+def test_calibration_pairs_add_frames_where_one_flash_begins() -> None:
+    rng = np.random.default_rng(16)
+    _, _, b1, b2 = scene(rng, [0, 1, 0], n=5)
+    u1, v1 = bearing_to_pixel(b1, WIDTH)
+    u2, v2 = bearing_to_pixel(b2, WIDTH)
+    # Fireflies 0-4 lit over camera-1 frames: 0 alone in 0, 1 begins in 1 beside it,
+    # nothing begins in 2, 2 begins in 3, 3 and 4 begin together in 4. Camera 2 starts
+    # recording 2 frames earlier and sees firefly 4 in its frame 0 too.
+    lit = {0: range(0, 5), 1: range(1, 4), 2: range(3, 5), 3: [4], 4: [-2, 4]}
+    firefly = np.array([f for f, frames in lit.items() for _ in frames])
+    frame1 = np.array([k for frames in lit.values() for k in frames])
+    delay = 2
+    seen1 = frame1 >= 0
+    det1 = Detections.from_columns(frame1[seen1], u1[firefly[seen1]], v1[firefly[seen1]])
+    det2 = Detections.from_columns(frame1 + delay, u2[firefly], v2[firefly])
+    pairs = calibration_pairs(det1, det2, delay, WIDTH, onset_radius_deg=1.0)
+    np.testing.assert_array_equal(pairs.frame1, [0, 1, 3])
+    np.testing.assert_allclose(pairs.bearing1, b1[[0, 1, 2]], atol=1e-12)
+    np.testing.assert_allclose(pairs.bearing2, b2[[0, 1, 2]], atol=1e-12)
+    single = calibration_pairs(det1, det2, delay, WIDTH)
+    np.testing.assert_array_equal(single.frame1, [0])
+
+
 def test_too_few_pairs_raise() -> None:
     rng = np.random.default_rng(7)
     _, _, b1, b2 = scene(rng, [0, 1, 0], n=5)
