@@ -28,6 +28,9 @@ SCENARIOS: dict[str, str] = {
     "hard-clean": "a clean night, but fireflies out to 20 m and dim down to the noise floor, "
     "point-spread 0.6-2 px, motion streaks, yellow-green to near-white flashes, correlated "
     "sensor grain, GoPro-like bitrate",
+    "hard-swarm": "the hard fireflies gathered in two swarms 1.4 m across, 3-6 m away, "
+    "slow (0.02-0.3 m/s) and flashing in synchrony on a shared beat, as Photinus carolinus "
+    "does in the real 3D data",
     "hard-wind": "the hard fireflies before a bright sky behind trees swaying 1-6 px at "
     "0.3-2 Hz, with sky glints blinking through holes in the leaves",
     "hard-all": "every artifact at once (dusk sky, lamp, moon, car, flashlight, swaying "
@@ -73,6 +76,7 @@ SCENARIO_SPECS: dict[str, ScenarioSpec] = {
     ),
     "real3d": ScenarioSpec(),
     "hard-clean": ScenarioSpec(noise_sigma=1.0),
+    "hard-swarm": ScenarioSpec(noise_sigma=1.0),
     "hard-wind": ScenarioSpec(sky_start=240.0, sky_end=240.0, n_branches=9, noise_sigma=1.5),
     "hard-all": ScenarioSpec(
         sky_start=60.0,
@@ -108,6 +112,17 @@ HARD_FIREFLIES: dict[str, Any] = {
 #: set explicitly (the original scenarios have none: their defaults are the fields').
 SCENARIO_DEFAULTS: dict[str, dict[str, Any]] = {
     "hard-clean": HARD_FIREFLIES,
+    "hard-swarm": {
+        **HARD_FIREFLIES,
+        "n_fireflies": 30,
+        "swarms": 2,
+        "swarm_radius_m": 0.7,
+        "range_m": (3.0, 6.0),
+        "speed_mps": (0.02, 0.3),
+        "flash_period_s": (0.5, 0.65),
+        "flashes_per_train": (4, 10),
+        "quiet_gap_s": (2.0, 6.0),
+    },
     "hard-wind": {
         **HARD_FIREFLIES,
         "sway_px": (1.0, 6.0),
@@ -210,6 +225,14 @@ class SimulationConfig(BaseModel):
     glints_per_branch : int
         Holes in the leaves per foliage branch through which the sky glints: small
         bright spots that blink open for a frame or two as the leaves move.
+    swarms : int
+        Synthetic fireflies gather in this many swarms, each a cloud ``swarm_radius_m``
+        in radius centred ``range_m`` away, and flash in synchrony: each swarm keeps
+        one train-and-gap schedule (``flash_period_s``, ``flashes_per_train``,
+        ``quiet_gap_s``) and its members flash on most of its beats. 0: every firefly
+        flies and flashes on its own.
+    swarm_radius_m : float
+        Half the extent of a swarm's cloud (metres, each axis).
     """
 
     model_config = ConfigDict(frozen=True, extra="forbid")
@@ -249,6 +272,8 @@ class SimulationConfig(BaseModel):
     sway_px: FloatRange | None = None
     sway_hz: FloatRange = (0.3, 2.0)
     glints_per_branch: int = Field(0, ge=0, le=1000)
+    swarms: int = Field(0, ge=0, le=12)
+    swarm_radius_m: float = Field(1.0, gt=0, le=10)
 
     @model_validator(mode="before")
     @classmethod
@@ -347,6 +372,11 @@ class SimulationConfig(BaseModel):
         if self.range_m[0] <= self.separation_m / 2:
             raise ValueError(
                 f"range_m starts at {self.range_m[0]} m, inside half the camera separation"
+            )
+        if self.swarms and self.range_m[0] - self.swarm_radius_m <= self.separation_m / 2:
+            raise ValueError(
+                f"swarms of radius {self.swarm_radius_m} m centred from {self.range_m[0]} m "
+                "reach inside half the camera separation"
             )
         if self.scenario == "real3d":
             if self.real3d_csv is None:

@@ -17,6 +17,11 @@ ALTITUDE_M = (0.2, 3.0)
 TURN_TIME_S = 0.7
 #: Vertical speed relative to horizontal speed (fireflies mostly cruise level).
 VERTICAL_SPEED_RATIO = 0.3
+#: Chance that a swarm member flashes on a given beat of its swarm.
+SWARM_TURNOUT = 0.7
+#: Spread (s) of a member's onset about its swarm's beat: synchronous fireflies
+#: flash within a few tens of milliseconds of each other.
+SYNC_JITTER_S = 0.03
 
 
 @dataclass(frozen=True)
@@ -84,13 +89,7 @@ def flights(rng: np.random.Generator, config: SimulationConfig, rig: Rig) -> Flo
     else:
         far = rng.uniform(near + 0.3 * (far_limit - near), far_limit, n)
 
-    velocity = gaussian_filter1d(
-        rng.standard_normal((n, steps, 3)), TURN_TIME_S * config.fps, axis=1
-    )
-    velocity[..., 2] *= VERTICAL_SPEED_RATIO
-    rms = np.sqrt(np.mean(np.sum(velocity[..., :2] ** 2, axis=-1), axis=1))
-    velocity *= (rng.uniform(*config.speed_mps, n) / rms)[:, None, None]
-
+    velocity = _velocities(rng, config, n, steps)
     azimuth = rng.uniform(0, 2 * np.pi, n)
     if config.range_spread == "log":
         rho = np.exp(rng.uniform(np.log(near), np.log(far)))
@@ -111,6 +110,55 @@ def flights(rng: np.random.Generator, config: SimulationConfig, rig: Rig) -> Flo
         ],
         axis=-1,
     )
+
+
+def swarm_flights(
+    rng: np.random.Generator, config: SimulationConfig, rig: Rig
+) -> tuple[FloatArray, np.ndarray]:
+    """Smooth random flights inside ``config.swarms`` clouds.
+
+    Each swarm's centre lies at a horizontal distance drawn in ``config.range_m`` from
+    the midpoint between the cameras, at a random azimuth, ``swarm_radius_m`` above the
+    lowest altitude of `ALTITUDE_M`; each firefly joins a swarm at random and its
+    flight (as in `flights`) is reflected into the box of half-side ``swarm_radius_m``
+    about its centre.
+
+    Returns
+    -------
+    positions : ndarray, shape (n_fireflies, n_action_frames, 3)
+        Metres, world frame.
+    swarm : ndarray of int64, shape (n_fireflies,)
+        The swarm of each firefly.
+    """
+    n, (start, stop) = config.n_fireflies, rig.action_frames
+    radius = config.swarm_radius_m
+    swarm = rng.integers(0, config.swarms, n)
+    azimuth = rng.uniform(0, 2 * np.pi, config.swarms)
+    distance = rng.uniform(*config.range_m, config.swarms)
+    centre = np.column_stack(
+        [
+            rig.position2[0] / 2 + distance * np.cos(azimuth),
+            rig.position2[1] / 2 + distance * np.sin(azimuth),
+            np.full(config.swarms, ALTITUDE_M[0] + radius - rig.camera_height_m),
+        ]
+    )[swarm]
+    start_xyz = centre + rng.uniform(-radius, radius, (n, 3))
+    velocity = _velocities(rng, config, n, stop - start)
+    path = start_xyz[:, None, :] + np.cumsum(velocity, axis=1) / config.fps
+    return fold(path, centre[:, None] - radius, centre[:, None] + radius), swarm
+
+
+def _velocities(
+    rng: np.random.Generator, config: SimulationConfig, n: int, steps: int
+) -> FloatArray:
+    """Gaussian-smoothed white-noise velocities (m/frame × fps), each firefly's scaled to
+    a horizontal RMS speed drawn in ``config.speed_mps``; shape (n, steps, 3)."""
+    velocity = gaussian_filter1d(
+        rng.standard_normal((n, steps, 3)), TURN_TIME_S * config.fps, axis=1
+    )
+    velocity[..., 2] *= VERTICAL_SPEED_RATIO
+    rms = np.sqrt(np.mean(np.sum(velocity[..., :2] ** 2, axis=-1), axis=1))
+    return velocity * (rng.uniform(*config.speed_mps, n) / rms)[:, None, None]
 
 
 def expand(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -159,6 +207,39 @@ def flash_onsets(
     return firefly[keep][order].astype(np.int64), onset[keep][order]
 
 
+def synchronous_onsets(
+    rng: np.random.Generator,
+    config: SimulationConfig,
+    swarm: np.ndarray,
+    start_s: float,
+    stop_s: float,
+) -> tuple[np.ndarray, FloatArray]:
+    """Onset times of fireflies flashing in synchrony with their swarm.
+
+    Each swarm keeps the schedule `flash_onsets` gives one firefly (trains of beats
+    separated by quiet gaps); each member flashes on a beat with probability
+    `SWARM_TURNOUT`, `SYNC_JITTER_S` off it.
+
+    Returns
+    -------
+    firefly_id : ndarray of int64
+    onset_s : ndarray
+        Seconds on camera 1's clock, within ``[start_s, stop_s)``, sorted.
+    """
+    n_swarms = config.swarms
+    beat_swarm, beat_s = flash_onsets(
+        rng, config.model_copy(update={"n_fireflies": n_swarms}), start_s, stop_s
+    )
+    members = np.argsort(swarm, kind="stable")
+    size = np.bincount(swarm, minlength=n_swarms)
+    beat, rank = expand(size[beat_swarm])
+    firefly = members[(np.cumsum(size) - size)[beat_swarm[beat]] + rank]
+    onset = beat_s[beat] + SYNC_JITTER_S * rng.standard_normal(beat.size)
+    keep = (rng.random(beat.size) < SWARM_TURNOUT) & (onset >= start_s) & (onset < stop_s)
+    order = np.argsort(onset[keep], kind="stable")
+    return firefly[keep][order].astype(np.int64), onset[keep][order]
+
+
 def flash_profile(length: np.ndarray) -> tuple[np.ndarray, np.ndarray, FloatArray]:
     """Frame offsets and rise/fall envelope of flashes lasting ``length`` frames.
 
@@ -174,8 +255,13 @@ def flash_profile(length: np.ndarray) -> tuple[np.ndarray, np.ndarray, FloatArra
 def synthetic_emissions(config: SimulationConfig, rig: Rig, rng: np.random.Generator) -> Emissions:
     """Flash-frames of ``config.n_fireflies`` synthetic fireflies over the action frames."""
     start, stop = rig.action_frames
-    paths = flights(rng, config, rig)
-    firefly, onset_s = flash_onsets(rng, config, start / config.fps, stop / config.fps)
+    start_s, stop_s = start / config.fps, stop / config.fps
+    if config.swarms:
+        paths, swarm = swarm_flights(rng, config, rig)
+        firefly, onset_s = synchronous_onsets(rng, config, swarm, start_s, stop_s)
+    else:
+        paths = flights(rng, config, rig)
+        firefly, onset_s = flash_onsets(rng, config, start_s, stop_s)
     lo, hi = config.flash_frames
     length = rng.integers(lo, hi + 1, firefly.size)
     strength = rng.lognormal(0.0, 0.3, firefly.size)

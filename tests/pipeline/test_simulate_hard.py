@@ -12,6 +12,8 @@ import pytest
 from numpy.typing import NDArray
 from pydantic import ValidationError
 
+from pipeline.params import PatternParams
+from pipeline.patterns import synchrony
 from pipeline.simulate import SimulationConfig, ground_truth, load_truth, plan, simulate
 from pipeline.simulation.config import SCENARIO_DEFAULTS, SCENARIOS
 from pipeline.simulation.render import FIREFLY_RGB, LUMA, WHITE_FLASH_RGB, spot_sigma
@@ -80,7 +82,7 @@ def test_original_scenarios_render_bit_identically(scenario: str, tmp_path: Path
 
 
 def test_hard_scenarios_are_documented_and_explicit_fields_win() -> None:
-    for name in ("hard-clean", "hard-wind", "hard-all"):
+    for name in ("hard-clean", "hard-wind", "hard-all", "hard-swarm"):
         assert name in SCENARIOS and name in SCENARIO_DEFAULTS
     config = SimulationConfig(scenario="hard-clean")
     assert config.range_m == (2.0, 20.0) and config.motion_blur == 1.0
@@ -99,6 +101,7 @@ def test_hard_scenarios_are_documented_and_explicit_fields_win() -> None:
         ({"psf_sigma_px": (2.0, 1.0)}, "psf_sigma_px"),
         ({"intensity_range": (0.0, 1.0)}, "intensity_range"),
         ({"motion_blur": 1.5}, "motion_blur"),
+        ({"swarms": 2, "range_m": (2.0, 8.0), "swarm_radius_m": 1.5}, "inside half the camera"),
     ],
 )
 def test_bad_hard_settings_are_rejected(settings: dict, message: str) -> None:
@@ -326,3 +329,21 @@ def test_sky_glints_blink_open_for_a_frame_or_two() -> None:
         peaks.append(diff.max())
     assert max(peaks) > 40  # as bright as a flash
     assert min(peaks) >= 0.0
+
+
+@pytest.mark.parametrize(("scenario", "synchronous"), [("hard-swarm", True), ("hard-clean", False)])
+def test_swarm_fireflies_stay_in_their_clouds_and_flash_together(
+    scenario: str, synchronous: bool
+) -> None:
+    config = SimulationConfig(scenario=scenario, seed=3)
+    truth = ground_truth(config)
+    f = truth.flashes
+    found = synchrony(f.frame1, f.firefly_id, truth.n_frames1, config.fps, PatternParams())
+    assert found["synchronous"] is synchronous
+    if not synchronous:
+        return
+    assert found["period_s"] == pytest.approx(np.mean(config.flash_period_s), abs=0.05)
+    xyz = np.column_stack([f.x, f.y, f.z])
+    for firefly in np.unique(f.firefly_id):
+        extent = np.ptp(xyz[f.firefly_id == firefly], axis=0)
+        assert np.all(extent <= 2 * config.swarm_radius_m + 1e-9)
