@@ -9,7 +9,9 @@ precision's definition of a true detection).
 
 Gradient-boosted trees (scikit-learn's ``HistGradientBoostingClassifier``, a training
 dependency only) are fitted; the threshold is the one of largest F1 over out-of-fold
-predictions, folds being whole seeds (the nights of one seed share their fireflies).
+predictions, folds being whole seeds (the nights of one seed share their fireflies),
+unless one is given (that cut moves with the mix of nights: many easy nights pull it
+down, so a retrained model can keep the shipped operating point).
 The trees are exported to the JSON that `pipeline.trees` evaluates.
 """
 
@@ -185,10 +187,11 @@ def train(
     classifier: str,
     matched_sigma_px: float,
     seed: int = 0,
+    threshold: float | None = None,
     folds: int = 4,
 ) -> tuple[EvidenceModel, dict[str, Any]]:
-    """Fit the evidence model on `nights`; its threshold and the figures of its card
-    come from out-of-fold predictions (folds of whole seeds).
+    """Fit the evidence model on `nights`; its threshold (unless given) and the figures
+    of its card come from out-of-fold predictions (folds of whole seeds).
 
     `classifier` (file name) and `matched_sigma_px` (`TrackingParams`) say where the
     nights' candidates and probabilities came from; the card records both.
@@ -208,7 +211,9 @@ def train(
         oof[test_rows] = fit_trees(rows[train_rows], is_flash[train_rows], seed).predict_proba(
             rows[test_rows]
         )
-    threshold = best_f1_threshold(oof, is_flash)
+    chosen_by = "given" if threshold is not None else "largest out-of-fold F1"
+    if threshold is None:
+        threshold = best_f1_threshold(oof, is_flash)
     figures = {
         name: operating_point(oof[kind == name], is_flash[kind == name], threshold)
         for name in sorted(set(kind))
@@ -222,6 +227,7 @@ def train(
         "trained_on": [n.name for n in nights],
         "n_rows": len(rows),
         "n_flashes": int(is_flash.sum()),
+        "threshold_chosen_by": chosen_by,
         "out_of_fold_at_threshold": figures,
     }
     model = EvidenceModel(fit_trees(rows, is_flash, seed), threshold, classifier, card)

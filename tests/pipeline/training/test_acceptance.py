@@ -46,6 +46,18 @@ def test_a_model_learns_evidence_and_writes_its_card(tmp_path) -> None:
     assert np.mean(accepted == test.is_flash) > 0.9
 
 
+def test_a_given_threshold_is_kept_and_scored_out_of_fold() -> None:
+    rng = np.random.default_rng(1)
+    nights = [_night(seed, "a", rng) for seed in (1, 2, 3)]
+    best, _ = train(nights, "flashnet2.onnx", 1.0, seed=0, folds=3)
+    strict, figures = train(nights, "flashnet2.onnx", 1.0, seed=0, threshold=0.95, folds=3)
+    assert best.card["threshold_chosen_by"] == "largest out-of-fold F1"
+    assert strict.threshold == 0.95 and strict.card["threshold_chosen_by"] == "given"
+    loose = best.card["out_of_fold_at_threshold"]["a"]
+    assert figures["a"]["accepted"] < loose["accepted"]  # a stricter cut accepts fewer
+    assert figures["a"]["precision"] >= loose["precision"]
+
+
 def test_a_model_learns_the_candidates_of_one_matched_filter() -> None:
     narrow = ProcessParams(tracking=TrackingParams(matched_sigma_px=0.75))
     assert common_matched_filter([narrow, narrow]) == 0.75
