@@ -2,9 +2,8 @@
 
 In a synchronised frame where each camera sees exactly one flash, or sees exactly one
 flash begin, the two bearings usually belong to the same firefly, so their rays must
-meet. The pose (unit
-translation ``t̂`` and rotation ``R``, see `pipeline.geometry`) is found by robust
-non-linear least squares on how far the rays miss each other:
+meet. The pose (unit translation ``t̂`` and rotation ``R``, see `pipeline.geometry`) is
+found by robust non-linear least squares on how far the rays miss each other:
 
 * the optimal depths of every pair come in closed form from
   `pipeline.geometry.closest_approach` (one vectorised call per evaluation);

@@ -201,10 +201,7 @@ def flash_onsets(
     train, index_in_train = expand(count.ravel())
     jitter = 1.0 + 0.03 * rng.standard_normal(train.size)
     onset = train_start.ravel()[train] + index_in_train * period.ravel()[train] * jitter
-    firefly = train // n_trains
-    keep = (onset >= start_s) & (onset < stop_s)
-    order = np.argsort(onset[keep], kind="stable")
-    return firefly[keep][order].astype(np.int64), onset[keep][order]
+    return _in_window(train // n_trains, onset, start_s, stop_s)
 
 
 def synchronous_onsets(
@@ -235,7 +232,15 @@ def synchronous_onsets(
     beat, rank = expand(size[beat_swarm])
     firefly = members[(np.cumsum(size) - size)[beat_swarm[beat]] + rank]
     onset = beat_s[beat] + SYNC_JITTER_S * rng.standard_normal(beat.size)
-    keep = (rng.random(beat.size) < SWARM_TURNOUT) & (onset >= start_s) & (onset < stop_s)
+    turned_out = rng.random(beat.size) < SWARM_TURNOUT
+    return _in_window(firefly[turned_out], onset[turned_out], start_s, stop_s)
+
+
+def _in_window(
+    firefly: np.ndarray, onset: FloatArray, start_s: float, stop_s: float
+) -> tuple[np.ndarray, FloatArray]:
+    """The onsets within ``[start_s, stop_s)`` and their fireflies, sorted by onset."""
+    keep = (onset >= start_s) & (onset < stop_s)
     order = np.argsort(onset[keep], kind="stable")
     return firefly[keep][order].astype(np.int64), onset[keep][order]
 
