@@ -75,7 +75,7 @@ def _train_acceptance(args: argparse.Namespace) -> int:
     model, figures = train(nights, classifier, matched_sigma_px, args.seed, args.threshold)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     model.to_json(args.out)
-    chosen = "given" if args.threshold is not None else "largest out-of-fold F1"
+    chosen = model.card["threshold_chosen_by"]
     print(f"threshold {model.threshold:.3f} ({chosen}); out of fold at it:")
     print(f"{'nights':26s} {'accepted':>9s} {'true':>7s} {'precision':>9s} {'recall':>7s}")
     for name, f in figures.items():
