@@ -422,7 +422,8 @@ def _add_simulate(subparsers: argparse._SubParsersAction) -> None:
         "--scenario",
         default="clean",
         help="clean, twilight, lights, headlights, foliage, field, real3d, or the harder "
-        "hard-clean, hard-wind, hard-all, hard-swarm (see pipeline.simulation.config.SCENARIOS)",
+        "hard-clean, hard-wind, hard-all, hard-swarm, hard-species "
+        "(see pipeline.simulation.config.SCENARIOS)",
     )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--width", type=int, default=640, help="frame width (height = width/2)")

@@ -31,6 +31,8 @@ SCENARIOS: dict[str, str] = {
     "hard-swarm": "the hard fireflies gathered in two swarms 1.4 m across, 3-6 m away, "
     "slow (0.02-0.3 m/s) and flashing in synchrony on a shared beat, as Photinus carolinus "
     "does in the real 3D data",
+    "hard-species": "the hard fireflies, each flashing in one of several species' patterns: "
+    "quick pulses (30-70 ms), brief flashes in trains, long single flashes (0.25-0.45 s)",
     "hard-wind": "the hard fireflies before a bright sky behind trees swaying 1-6 px at "
     "0.3-2 Hz, with sky glints blinking through holes in the leaves",
     "hard-all": "every artifact at once (dusk sky, lamp, moon, car, flashlight, swaying "
@@ -77,6 +79,7 @@ SCENARIO_SPECS: dict[str, ScenarioSpec] = {
     "real3d": ScenarioSpec(),
     "hard-clean": ScenarioSpec(noise_sigma=1.0),
     "hard-swarm": ScenarioSpec(noise_sigma=1.0),
+    "hard-species": ScenarioSpec(noise_sigma=1.0),
     "hard-wind": ScenarioSpec(sky_start=240.0, sky_end=240.0, n_branches=9, noise_sigma=1.5),
     "hard-all": ScenarioSpec(
         sky_start=60.0,
@@ -108,10 +111,62 @@ HARD_FIREFLIES: dict[str, Any] = {
     "bits_per_pixel": 0.16,
 }
 
+
+class FlashTiming(BaseModel):
+    """How one kind of firefly flashes, in seconds (not frames: a species keeps its
+    pattern at any frame rate).
+
+    Attributes
+    ----------
+    flash_s : (low, high)
+        Length of a flash, drawn per flash (at least one frame).
+    period_s : (low, high)
+        Onset-to-onset spacing of the flashes of a train, drawn per train.
+    per_train : (low, high)
+        Flashes per train.
+    quiet_s : (low, high)
+        Quiet time between trains.
+    """
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    flash_s: tuple[float, float]
+    period_s: tuple[float, float]
+    per_train: tuple[int, int]
+    quiet_s: tuple[float, float]
+
+    @model_validator(mode="after")
+    def _ordered(self) -> Self:
+        for name in ("flash_s", "period_s", "per_train", "quiet_s"):
+            low, high = getattr(self, name)
+            if not 0 < low <= high:
+                raise ValueError(f"{name} must satisfy 0 < low <= high, got {(low, high)}")
+        if self.per_train[1] > 1 and self.flash_s[1] >= self.period_s[0]:
+            raise ValueError(
+                f"flashes of up to {self.flash_s[1]} s overlap trains spaced from "
+                f"{self.period_s[0]} s"
+            )
+        return self
+
+
+#: Flash patterns of the ``hard-species`` scenario, one drawn per firefly. Species
+#: differ far more than the 0.1–0.2 s trains the other scenarios draw: North American
+#: *Photinus* and *Photuris* range from pulses of a few tens of milliseconds a few tenths
+#: of a second apart to single flashes of up to half a second every few seconds. The
+#: patterns stay within what `pipeline.flicker` and the light-curve test may call a flash
+#: (lit under 0.5 s, under 40 % of a 2 s window).
+SPECIES_TIMINGS: tuple[FlashTiming, ...] = (
+    FlashTiming(flash_s=(0.03, 0.07), period_s=(0.2, 0.4), per_train=(3, 8), quiet_s=(2.0, 6.0)),
+    FlashTiming(flash_s=(0.1, 0.2), period_s=(0.5, 1.0), per_train=(3, 8), quiet_s=(3.0, 10.0)),
+    FlashTiming(flash_s=(0.25, 0.45), period_s=(1.5, 3.0), per_train=(1, 3), quiet_s=(2.0, 6.0)),
+    FlashTiming(flash_s=(0.1, 0.3), period_s=(2.0, 6.0), per_train=(1, 1), quiet_s=(2.0, 7.0)),
+)
+
 #: Configuration defaults of a scenario, applied to the fields a configuration does not
 #: set explicitly (the original scenarios have none: their defaults are the fields').
 SCENARIO_DEFAULTS: dict[str, dict[str, Any]] = {
     "hard-clean": HARD_FIREFLIES,
+    "hard-species": {**HARD_FIREFLIES, "n_fireflies": 20, "flash_timings": SPECIES_TIMINGS},
     "hard-swarm": {
         **HARD_FIREFLIES,
         "n_fireflies": 30,
@@ -173,6 +228,9 @@ class SimulationConfig(BaseModel):
     flash_frames, flash_period_s, flashes_per_train, quiet_gap_s : (low, high)
         Ranges of flash length (frames), flash spacing in a train, flashes per train,
         and quiet time between trains.
+    flash_timings : tuple of FlashTiming
+        When given, each firefly flashes in one of these patterns (drawn uniformly per
+        firefly) instead of the four fields above.
     flash_brightness : float
         Peak luma above the background of a typical flash at 5 m.
     speed_mps, range_m : (low, high)
@@ -251,6 +309,7 @@ class SimulationConfig(BaseModel):
     flash_period_s: FloatRange = (0.5, 1.0)
     flashes_per_train: IntRange = (3, 8)
     quiet_gap_s: FloatRange = (3.0, 10.0)
+    flash_timings: tuple[FlashTiming, ...] = ()
     flash_brightness: float = Field(160.0, gt=0)
     speed_mps: FloatRange = (0.2, 1.0)
     range_m: FloatRange = (2.0, 10.0)
@@ -377,6 +436,10 @@ class SimulationConfig(BaseModel):
             raise ValueError(
                 f"swarms of radius {self.swarm_radius_m} m centred from {self.range_m[0]} m "
                 "reach inside half the camera separation"
+            )
+        if self.swarms and self.flash_timings:
+            raise ValueError(
+                "a swarm flashes on one beat: swarms and flash_timings exclude each other"
             )
         if self.scenario == "real3d":
             if self.real3d_csv is None:

@@ -1,4 +1,4 @@
-"""Synthetic fireflies: smooth random flights and trains of short flashes."""
+"""Synthetic fireflies: smooth random flights and trains of flashes."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
 from pipeline.geometry import FloatArray
-from pipeline.simulation.config import SimulationConfig
+from pipeline.simulation.config import FlashTiming, SimulationConfig
 from pipeline.simulation.rig import Rig
 
 #: Lowest and highest flight altitude above the ground, metres.
@@ -169,31 +169,35 @@ def expand(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def flash_onsets(
-    rng: np.random.Generator, config: SimulationConfig, start_s: float, stop_s: float
+    rng: np.random.Generator,
+    n: int,
+    per_train: tuple[int, int],
+    period_s: tuple[float, float],
+    quiet_s: tuple[float, float],
+    start_s: float,
+    stop_s: float,
 ) -> tuple[np.ndarray, FloatArray]:
     """Onset times of flash trains separated by quiet gaps.
 
-    Each firefly alternates quiet gaps (``quiet_gap_s``) and trains of
-    ``flashes_per_train`` flashes ``flash_period_s`` apart (period drawn per train,
-    jittered by 3 % per flash), starting at a random phase.
+    Each of `n` fireflies alternates quiet gaps (``quiet_s``) and trains of
+    ``per_train`` flashes ``period_s`` apart (period drawn per train, jittered by 3 %
+    per flash), starting at a random phase.
 
     Returns
     -------
     firefly_id : ndarray of int64
+        In ``[0, n)``.
     onset_s : ndarray
         Seconds on camera 1's clock, within ``[start_s, stop_s)``, sorted.
     """
-    n = config.n_fireflies
-    lo_n, hi_n = config.flashes_per_train
-    shortest_cycle = config.quiet_gap_s[0] + (lo_n - 1) * config.flash_period_s[0]
+    lo_n, hi_n = per_train
+    shortest_cycle = quiet_s[0] + (lo_n - 1) * period_s[0]
     n_trains = int(np.ceil((stop_s - start_s) / shortest_cycle)) + 2
-    mean_cycle = np.mean(config.quiet_gap_s) + (np.mean([lo_n, hi_n]) - 1) * np.mean(
-        config.flash_period_s
-    )
+    mean_cycle = np.mean(quiet_s) + (np.mean([lo_n, hi_n]) - 1) * np.mean(period_s)
 
     count = rng.integers(lo_n, hi_n + 1, (n, n_trains))
-    period = rng.uniform(*config.flash_period_s, (n, n_trains))
-    gap = rng.uniform(*config.quiet_gap_s, (n, n_trains))
+    period = rng.uniform(*period_s, (n, n_trains))
+    gap = rng.uniform(*quiet_s, (n, n_trains))
     cycle = (count - 1) * period + gap
     first = start_s - rng.uniform(0, mean_cycle, n)
     train_start = first[:, None] + np.cumsum(cycle, axis=1) - cycle
@@ -202,6 +206,47 @@ def flash_onsets(
     jitter = 1.0 + 0.03 * rng.standard_normal(train.size)
     onset = train_start.ravel()[train] + index_in_train * period.ravel()[train] * jitter
     return _in_window(train // n_trains, onset, start_s, stop_s)
+
+
+def config_onsets(
+    rng: np.random.Generator, config: SimulationConfig, n: int, start_s: float, stop_s: float
+) -> tuple[np.ndarray, FloatArray]:
+    """`flash_onsets` of `n` fireflies on the configuration's one pattern."""
+    return flash_onsets(
+        rng, n, config.flashes_per_train, config.flash_period_s, config.quiet_gap_s, start_s, stop_s
+    )
+
+
+def species_flashes(
+    rng: np.random.Generator,
+    timings: tuple[FlashTiming, ...],
+    n: int,
+    fps: float,
+    start_s: float,
+    stop_s: float,
+) -> tuple[np.ndarray, FloatArray, np.ndarray]:
+    """Flashes of `n` fireflies, each keeping one of the `timings` (drawn uniformly).
+
+    Returns
+    -------
+    firefly_id : ndarray of int64
+    onset_s : ndarray
+        Seconds on camera 1's clock, within ``[start_s, stop_s)``, sorted.
+    length : ndarray of int64
+        Frames each flash lasts: its drawn length in seconds at `fps`, at least one.
+    """
+    kind = rng.integers(0, len(timings), n)
+    parts = []
+    for k, timing in enumerate(timings):
+        members = np.flatnonzero(kind == k)
+        member, onset = flash_onsets(
+            rng, members.size, timing.per_train, timing.period_s, timing.quiet_s, start_s, stop_s
+        )
+        length = np.maximum(1, np.rint(rng.uniform(*timing.flash_s, onset.size) * fps))
+        parts.append((members[member], onset, length.astype(np.int64)))
+    firefly, onset, length = (np.concatenate(column) for column in zip(*parts, strict=True))
+    order = np.argsort(onset, kind="stable")
+    return firefly[order], onset[order], length[order]
 
 
 def synchronous_onsets(
@@ -213,7 +258,7 @@ def synchronous_onsets(
 ) -> tuple[np.ndarray, FloatArray]:
     """Onset times of fireflies flashing in synchrony with their swarm.
 
-    Each swarm keeps the schedule `flash_onsets` gives one firefly (trains of beats
+    Each swarm keeps the schedule `config_onsets` gives one firefly (trains of beats
     separated by quiet gaps); each member flashes on a beat with probability
     `SWARM_TURNOUT`, `SYNC_JITTER_S` off it.
 
@@ -224,9 +269,7 @@ def synchronous_onsets(
         Seconds on camera 1's clock, within ``[start_s, stop_s)``, sorted.
     """
     n_swarms = config.swarms
-    beat_swarm, beat_s = flash_onsets(
-        rng, config.model_copy(update={"n_fireflies": n_swarms}), start_s, stop_s
-    )
+    beat_swarm, beat_s = config_onsets(rng, config, n_swarms, start_s, stop_s)
     members = np.argsort(swarm, kind="stable")
     size = np.bincount(swarm, minlength=n_swarms)
     beat, rank = expand(size[beat_swarm])
@@ -261,14 +304,20 @@ def synthetic_emissions(config: SimulationConfig, rig: Rig, rng: np.random.Gener
     """Flash-frames of ``config.n_fireflies`` synthetic fireflies over the action frames."""
     start, stop = rig.action_frames
     start_s, stop_s = start / config.fps, stop / config.fps
-    if config.swarms:
-        paths, swarm = swarm_flights(rng, config, rig)
-        firefly, onset_s = synchronous_onsets(rng, config, swarm, start_s, stop_s)
-    else:
+    if config.flash_timings:  # never with swarms (`SimulationConfig`)
         paths = flights(rng, config, rig)
-        firefly, onset_s = flash_onsets(rng, config, start_s, stop_s)
-    lo, hi = config.flash_frames
-    length = rng.integers(lo, hi + 1, firefly.size)
+        firefly, onset_s, length = species_flashes(
+            rng, config.flash_timings, config.n_fireflies, config.fps, start_s, stop_s
+        )
+    else:
+        if config.swarms:
+            paths, swarm = swarm_flights(rng, config, rig)
+            firefly, onset_s = synchronous_onsets(rng, config, swarm, start_s, stop_s)
+        else:
+            paths = flights(rng, config, rig)
+            firefly, onset_s = config_onsets(rng, config, config.n_fireflies, start_s, stop_s)
+        lo, hi = config.flash_frames
+        length = rng.integers(lo, hi + 1, firefly.size)
     strength = rng.lognormal(0.0, 0.3, firefly.size)
     flash, offset, envelope = flash_profile(length)
     frame1 = np.floor(onset_s * config.fps).astype(np.int64)[flash] + offset

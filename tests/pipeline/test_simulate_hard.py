@@ -15,7 +15,7 @@ from pydantic import ValidationError
 from pipeline.params import PatternParams
 from pipeline.patterns import synchrony
 from pipeline.simulate import SimulationConfig, ground_truth, load_truth, plan, simulate
-from pipeline.simulation.config import SCENARIO_DEFAULTS, SCENARIOS
+from pipeline.simulation.config import SCENARIO_DEFAULTS, SCENARIOS, SPECIES_TIMINGS, FlashTiming
 from pipeline.simulation.render import FIREFLY_RGB, LUMA, WHITE_FLASH_RGB, spot_sigma
 from pipeline.simulation.tables import FlashTruth
 
@@ -82,7 +82,7 @@ def test_original_scenarios_render_bit_identically(scenario: str, tmp_path: Path
 
 
 def test_hard_scenarios_are_documented_and_explicit_fields_win() -> None:
-    for name in ("hard-clean", "hard-wind", "hard-all", "hard-swarm"):
+    for name in ("hard-clean", "hard-wind", "hard-all", "hard-swarm", "hard-species"):
         assert name in SCENARIOS and name in SCENARIO_DEFAULTS
     config = SimulationConfig(scenario="hard-clean")
     assert config.range_m == (2.0, 20.0) and config.motion_blur == 1.0
@@ -350,3 +350,34 @@ def test_swarm_fireflies_stay_in_their_clouds_and_flash_together(
     for firefly in np.unique(f.firefly_id):
         extent = np.ptp(xyz[f.firefly_id == firefly], axis=0)
         assert np.all(extent <= 2 * config.swarm_radius_m + 1e-9)
+
+
+@pytest.mark.parametrize("fps", [30.0, 60.0])
+def test_species_keep_their_flash_pattern_in_seconds_at_any_frame_rate(fps: float) -> None:
+    config = SimulationConfig(scenario="hard-species", seed=12, fps=fps)
+    f = ground_truth(config).flashes
+    flash, frames = np.unique(f.flash_id, return_counts=True)
+    last = np.array([f.frame1[f.flash_id == i].max() for i in flash])
+    whole = last < config.n_frames - 1  # a flash cut short by the end of the recording
+    firefly = np.array([f.firefly_id[f.flash_id == i][0] for i in flash])
+    medians = []
+    for one in np.unique(firefly):
+        seconds = frames[whole & (firefly == one)] / fps
+        fits = [
+            timing
+            for timing in SPECIES_TIMINGS
+            if np.all(seconds >= timing.flash_s[0] - 1 / fps)
+            and np.all(seconds <= timing.flash_s[1] + 1 / fps)
+        ]
+        assert fits, f"firefly {one}: flashes of {seconds} s fit no pattern"
+        medians.append(np.median(seconds) if len(seconds) else np.nan)
+    # Quick pulses, brief flashes and long flashes on one night.
+    bands = np.digitize(np.array(medians)[np.isfinite(medians)], [0.085, 0.22])
+    assert set(bands) == {0, 1, 2}
+
+
+def test_flash_timings_are_checked() -> None:
+    with pytest.raises(ValidationError, match="overlap"):
+        FlashTiming(flash_s=(0.2, 0.6), period_s=(0.5, 1.0), per_train=(2, 4), quiet_s=(1, 2))
+    with pytest.raises(ValidationError, match="swarms"):
+        SimulationConfig(scenario="hard-swarm", flash_timings=SPECIES_TIMINGS)
