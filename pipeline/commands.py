@@ -422,7 +422,7 @@ def _add_simulate(subparsers: argparse._SubParsersAction) -> None:
         "--scenario",
         default="clean",
         help="clean, twilight, lights, headlights, foliage, field, real3d, or the harder "
-        "hard-clean, hard-wind, hard-all, hard-swarm, hard-species "
+        "hard-clean, hard-wind, hard-all, hard-swarm, hard-species, hard-noisy "
         "(see pipeline.simulation.config.SCENARIOS)",
     )
     parser.add_argument("--seed", type=int, default=0)

@@ -33,6 +33,8 @@ SCENARIOS: dict[str, str] = {
     "does in the real 3D data",
     "hard-species": "the hard fireflies, each flashing in one of several species' patterns: "
     "quick pulses (30-70 ms), brief flashes in trains, long single flashes (0.25-0.45 s)",
+    "hard-noisy": "the hard fireflies on a high-ISO night the encoder cannot keep: read noise of "
+    "3.5 grey levels at 0.16 bit/pixel leaves blocky speckle that stays put for frames",
     "hard-wind": "the hard fireflies before a bright sky behind trees swaying 1-6 px at "
     "0.3-2 Hz, with sky glints blinking through holes in the leaves",
     "hard-all": "every artifact at once (dusk sky, lamp, moon, car, flashlight, swaying "
@@ -80,6 +82,7 @@ SCENARIO_SPECS: dict[str, ScenarioSpec] = {
     "hard-clean": ScenarioSpec(noise_sigma=1.0),
     "hard-swarm": ScenarioSpec(noise_sigma=1.0),
     "hard-species": ScenarioSpec(noise_sigma=1.0),
+    "hard-noisy": ScenarioSpec(noise_sigma=3.5),
     "hard-wind": ScenarioSpec(sky_start=240.0, sky_end=240.0, n_branches=9, noise_sigma=1.5),
     "hard-all": ScenarioSpec(
         sky_start=60.0,
@@ -167,6 +170,7 @@ SPECIES_TIMINGS: tuple[FlashTiming, ...] = (
 SCENARIO_DEFAULTS: dict[str, dict[str, Any]] = {
     "hard-clean": HARD_FIREFLIES,
     "hard-species": {**HARD_FIREFLIES, "n_fireflies": 20, "flash_timings": SPECIES_TIMINGS},
+    "hard-noisy": HARD_FIREFLIES,
     "hard-swarm": {
         **HARD_FIREFLIES,
         "n_fireflies": 30,

@@ -82,7 +82,7 @@ def test_original_scenarios_render_bit_identically(scenario: str, tmp_path: Path
 
 
 def test_hard_scenarios_are_documented_and_explicit_fields_win() -> None:
-    for name in ("hard-clean", "hard-wind", "hard-all", "hard-swarm", "hard-species"):
+    for name in ("hard-clean", "hard-wind", "hard-all", "hard-swarm", "hard-species", "hard-noisy"):
         assert name in SCENARIOS and name in SCENARIO_DEFAULTS
     config = SimulationConfig(scenario="hard-clean")
     assert config.range_m == (2.0, 20.0) and config.motion_blur == 1.0
