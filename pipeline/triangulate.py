@@ -5,15 +5,18 @@ camera-1 flash is matched to at most one camera-2 flash by minimum total ray gap
 (Hungarian assignment), pairs whose rays miss by more than a gate are refused, and each
 match is triangulated at the midpoint of the rays' closest approach.
 
-All candidate pairs of all frames are built and scored in one vectorised pass; frames
-with a single flash in either camera, or without competing candidates, are decided
-without a solver, and `scipy.optimize.linear_sum_assignment` runs only on frames where
-several flashes on both sides compete.
+All candidate pairs of a batch of frames are built and scored in one vectorised pass;
+frames with a single flash in either camera, or without competing candidates, are
+decided without a solver, and `scipy.optimize.linear_sum_assignment` runs only on frames
+where several flashes on both sides compete. Batches hold whole frames and about
+`MAX_PAIRS` pairs, so memory stays bounded when every candidate is matched (the
+acceptance stage's stereo evidence): a grainy 4K night makes ~470 candidates a frame
+per camera, 80 million pairs in 12 s, which in one pass took 19 GB.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from typing import Self
 
 import numpy as np
@@ -33,6 +36,8 @@ UNKNOWN_SNR = 10.0
 #: A point is sure of its range when ``range_sd_m`` is at most this share of ``range_m``
 #: (the project's 2 % accuracy target).
 SURE_RELATIVE_SD = 0.02
+#: Candidate pairs scored at once (a few hundred bytes each while they are scored).
+MAX_PAIRS = 1_000_000
 
 
 def sure_of_range(range_sd_m: ArrayLike, range_m: ArrayLike) -> NDArray[np.bool_]:
@@ -128,7 +133,77 @@ def triangulate(
     """
     validate_separation(separation_m)
     check_width(width)
-    pairs = candidate_pairs(det1.frame, det2.frame - int(delay_frames))
+    frame2 = det2.frame - int(delay_frames)
+    parts = []
+    for rows1, rows2 in frame_batches(det1.frame, frame2, MAX_PAIRS):
+        points = _triangulate_batch(
+            det1.select(rows1),
+            det2.select(rows2),
+            frame2[rows2],
+            pose,
+            width,
+            separation_m,
+            params,
+            pose_covariance,
+        )
+        parts.append(replace(points, index1=rows1[points.index1], index2=rows2[points.index2]))
+    return Points3D(
+        **{f.name: np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(Points3D)}
+    )
+
+
+def frame_batches(
+    frame1: IntArray, frame2: IntArray, max_pairs: int
+) -> list[tuple[IntArray, IntArray]]:
+    """Rows of each camera split into batches of whole frames: the frames whose pairs
+    start within the same `max_pairs` of the running count, so a batch holds under
+    `max_pairs` pairs plus those of its last frame.
+
+    Parameters
+    ----------
+    frame1, frame2 : ndarray of int64
+        Frame of each detection, both in camera-1 frame numbers.
+    max_pairs : int
+        Pairs (camera-1 rows × camera-2 rows of a shared frame) a batch may hold.
+
+    Returns
+    -------
+    list of (ndarray, ndarray)
+        Ascending rows of camera 1 and camera 2 of each batch, in frame order; one batch
+        of every row when all pairs fit.
+    """
+    f1, n1 = np.unique(frame1, return_counts=True)
+    f2, n2 = np.unique(frame2, return_counts=True)
+    shared, i1, i2 = np.intersect1d(f1, f2, assume_unique=True, return_indices=True)
+    size = n1[i1].astype(np.int64) * n2[i2]
+    if size.sum() <= max_pairs:
+        return [(np.arange(len(frame1)), np.arange(len(frame2)))]
+    batch = (np.cumsum(size) - size) // max_pairs
+    last = np.r_[np.flatnonzero(np.diff(batch)), len(batch) - 1]
+    upper = np.r_[shared[last[:-1]], np.iinfo(np.int64).max]  # frames up to this one
+    lower = np.r_[np.iinfo(np.int64).min, upper[:-1]]
+    return [
+        (
+            np.flatnonzero((frame1 > lo) & (frame1 <= hi)),
+            np.flatnonzero((frame2 > lo) & (frame2 <= hi)),
+        )
+        for lo, hi in zip(lower, upper, strict=True)
+    ]
+
+
+def _triangulate_batch(
+    det1: Detections,
+    det2: Detections,
+    frame2: IntArray,
+    pose: Pose,
+    width: int,
+    separation_m: float,
+    params: TriangulationParams,
+    pose_covariance: FloatArray | None,
+) -> Points3D:
+    """`triangulate` of detections whose camera-2 frames are `frame2` (camera-1 frame
+    numbers)."""
+    pairs = candidate_pairs(det1.frame, frame2)
     i1, i2 = pairs.index1, pairs.index2
     rays = closest_approach(
         pixel_to_bearing(det1.x[i1], det1.y[i1], width),

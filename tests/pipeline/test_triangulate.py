@@ -6,9 +6,11 @@ from pipeline.detections import Detections
 from pipeline.geometry import Pose, bearing_to_pixel, closest_approach
 from pipeline.params import TriangulationParams, validate_separation
 from pipeline.results import Calibration, read_calibration, write_calibration
+import pipeline.triangulate
 from pipeline.triangulate import (
     Points3D,
     candidate_pairs,
+    frame_batches,
     localisation_rad,
     parallax,
     range_sd,
@@ -76,6 +78,45 @@ def test_several_flashes_per_frame_matched_with_negative_delay() -> None:
     assert result.frame.min() == -delay
     assert np.all(np.diff(result.frame) >= 0)
     np.testing.assert_allclose(result.xyz, points[result.index1], atol=1e-6)
+
+
+def test_crowded_frames_are_matched_in_batches_with_the_same_result(monkeypatch) -> None:
+    """Many candidates a frame, shuffled, with frames seen by one camera only and a
+    delay: batches of a few frames give the points of one pass, row for row."""
+    rng = np.random.default_rng(7)
+    frames = np.repeat(np.arange(60), rng.integers(1, 12, 60))
+    points = random_points(rng, len(frames))
+    det1 = detections_of(points, frames, 1)
+    shuffle = rng.permutation(len(frames))[: len(frames) - 40]
+    noisy = detections_of(points[shuffle], frames[shuffle] + 3, 2)
+    det2 = Detections.from_columns(
+        np.r_[noisy.frame, [100, 101]],
+        np.r_[noisy.x + rng.normal(0, 0.3, len(noisy)), [10.0, 20.0]],
+        np.r_[noisy.y, [100.0, 120.0]],
+    )
+    whole = triangulate(det1, det2, 3, POSE, WIDTH, SEPARATION)
+    monkeypatch.setattr(pipeline.triangulate, "MAX_PAIRS", 50)
+    assert len(frame_batches(det1.frame, det2.frame - 3, 50)) > 10
+    batched = triangulate(det1, det2, 3, POSE, WIDTH, SEPARATION)
+    assert len(whole) > 100
+    for name in ("xyz", "frame", "gap_m", "range_m", "range_sd_m", "index1", "index2"):
+        np.testing.assert_array_equal(getattr(batched, name), getattr(whole, name))
+
+
+def test_frame_batches_hold_whole_frames_and_bounded_pairs() -> None:
+    frame1 = np.array([5, 0, 0, 1, 1, 1, 2, 7, 9])
+    frame2 = np.array([0, 1, 1, 2, 2, 2, 2, 7, 8])
+    batches = frame_batches(frame1, frame2, 4)
+    # Pairs per shared frame: 0: 2, 1: 6, 2: 4, 7: 1. Every row in exactly one batch.
+    assert sorted(np.concatenate([b[0] for b in batches]).tolist()) == list(range(9))
+    assert sorted(np.concatenate([b[1] for b in batches]).tolist()) == list(range(9))
+    assert [sorted(set(frame1[b[0]]) & set(frame2[b[1]])) for b in batches] == [[0, 1], [2], [7]]
+    for rows1, rows2 in batches:
+        shared = sorted(set(frame1[rows1]) & set(frame2[rows2]))
+        pairs = [np.sum(frame1[rows1] == f) * np.sum(frame2[rows2] == f) for f in shared]
+        assert sum(pairs[:-1]) < 4  # under the bound, but for the batch's last frame
+    whole = frame_batches(frame1, frame2, 13)
+    assert len(whole) == 1 and len(whole[0][0]) == 9
 
 
 def test_frames_seen_by_one_camera_only_yield_nothing() -> None:
