@@ -7,6 +7,8 @@ the delay and the pose are known, from the other one:
 * its light curve (`pipeline.acceptance.spot_chains`): how long the spot stays lit
   (faint peaks counted), how long it is a candidate, how many candidates the chain
   holds, the chain's best SNR and probability;
+* how crowded its camera is with candidates at least as strong (`as_strong_per_frame`):
+  in a frame full of grain speckle a chance stereo partner is likely, in a quiet one not;
 * the artifact tests: recurrence (`pipeline.recurrence`), flicker duty
   (`pipeline.flicker`), how many other light curves lit the same spot within seconds
   (`REVISIT_RADIUS_DEG`, `REVISIT_WINDOW_S`: a firefly moves between its flashes, a
@@ -49,6 +51,7 @@ _OWN: tuple[str, ...] = (
     "chain_candidates_s",
     "chain_peak_snr_log",
     "chain_peak_probability",
+    "as_strong_per_frame_log",
     "recurrence",
     "flicker_duty",
     "spot_revisits",
@@ -195,12 +198,62 @@ def _own_features(
                 chain_size[ev.chain] / fps,
                 np.log(peak_snr[ev.chain]),
                 peak_probability[ev.chain],
+                np.log(as_strong_per_frame(det.frame, snr, fps)),
                 det.recurrence.astype(np.float64),
                 duty,
                 revisits[ev.chain],
                 verdicts,
             ]
         )
+
+
+#: Length of the blocks of a recording over which `as_strong_per_frame` counts, seconds:
+#: long enough to count the rare strong candidates, short enough to follow a night
+#: that grows noisier.
+CROWD_BLOCK_S = 10.0
+
+
+def as_strong_per_frame(
+    frame: NDArray[np.integer], snr: NDArray[np.floating], fps: float
+) -> NDArray[np.float64]:
+    """How many candidates of the camera are at least as strong, per frame.
+
+    Parameters
+    ----------
+    frame : ndarray of int, shape (N,)
+        Each candidate's frame index.
+    snr : ndarray of float, shape (N,)
+        Each candidate's peak SNR (matched filter over the noise σ).
+    fps : float
+        Frames per second.
+
+    Returns
+    -------
+    ndarray of float64, shape (N,)
+        The candidates of the same `CROWD_BLOCK_S` block of frames (counted from frame 0)
+        whose SNR is at least the candidate's, itself included, divided by the frames of
+        the block up to its last candidate: the expected number of candidates as strong
+        in any one frame, which is what a chance stereo partner is drawn from.
+    """
+    n = len(frame)
+    if n == 0:
+        return np.zeros(0)
+    length = max(1, round(CROWD_BLOCK_S * fps))
+    block = np.asarray(frame, np.int64) // length
+    snr = np.asarray(snr, np.float64)
+    order = np.lexsort((snr, block))  # by block, then ascending SNR
+    b, v = block[order], snr[order]
+    starts_tie = np.r_[True, (b[1:] != b[:-1]) | (v[1:] != v[:-1])]
+    first_of_tie = np.maximum.accumulate(np.where(starts_tie, np.arange(n), 0))
+    block_ids, block_end = np.unique(b, return_index=True)
+    block_end = np.r_[block_end[1:], n]  # one past each block's last candidate
+    slot = np.searchsorted(block_ids, b)
+    last_frame = np.zeros(len(block_ids), np.int64)
+    np.maximum.at(last_frame, slot, np.asarray(frame, np.int64)[order])
+    frames = last_frame - block_ids * length + 1
+    out = np.empty(n)
+    out[order] = (block_end[slot] - first_of_tie) / frames[slot]
+    return out
 
 
 #: A light curve revisits its spot when another one lies this close (degrees) within

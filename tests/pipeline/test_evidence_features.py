@@ -9,7 +9,13 @@ from numpy.typing import NDArray
 
 from pipeline.acceptance import Evidence, Verdict, assess, spot_chains, steady_frames
 from pipeline.detections import Detections
-from pipeline.evidence_features import FEATURES, candidate_features, stereo_matches
+from pipeline.evidence_features import (
+    CROWD_BLOCK_S,
+    FEATURES,
+    as_strong_per_frame,
+    candidate_features,
+    stereo_matches,
+)
 from pipeline.geometry import Pose, bearing_to_pixel
 from pipeline.params import AcceptanceParams, FlickerParams, TriangulationParams
 
@@ -144,3 +150,27 @@ def test_a_spot_lit_again_and_again_counts_its_revisits_a_passing_firefly_does_n
     revisits = _col(rows, "spot_revisits")
     assert revisits[: len(frames)].tolist() == [len(starts) - 1] * len(frames)
     assert revisits[len(frames) :].tolist() == [0] * len(frames)
+
+
+def test_a_crowded_frame_counts_more_candidates_as_strong() -> None:
+    """Block 0 (frames 0-299 at 30 fps) holds a quiet minute's worth: 3 candidates over
+    its 300 frames; block 1 is crowded: 60 candidates at 5 sigma over the frames up to
+    its last one, and one at 20 sigma."""
+    fps = 30.0
+    length = round(CROWD_BLOCK_S * fps)
+    frame = np.r_[[0, 150, 299], length + np.arange(60) // 2, length + 59]
+    snr = np.r_[[5.0, 20.0, 5.0], np.full(60, 5.0), 20.0]
+    rate = as_strong_per_frame(frame, snr, fps)
+    # Quiet block: the two 5 sigma ones count each other and the 20 sigma one.
+    np.testing.assert_allclose(rate[:3], [3 / 300, 1 / 300, 3 / 300])
+    # Crowded block: 60 frames up to its last candidate; ties count each other.
+    np.testing.assert_allclose(rate[3:63], 61 / 60)
+    np.testing.assert_allclose(rate[63], 1 / 60)
+    assert as_strong_per_frame(np.zeros(0, int), np.zeros(0), fps).shape == (0,)
+
+
+def test_the_crowd_of_a_candidate_is_a_feature() -> None:
+    candidates, evidence = _scene()
+    rows, _ = _features(candidates, evidence, 30.0)
+    expected = as_strong_per_frame(candidates[0].frame, candidates[0].snr, 30.0)
+    np.testing.assert_allclose(_col(rows, "as_strong_per_frame_log"), np.log(expected))

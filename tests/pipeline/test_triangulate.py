@@ -2,11 +2,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+import pipeline.triangulate
 from pipeline.detections import Detections
 from pipeline.geometry import Pose, bearing_to_pixel, closest_approach
 from pipeline.params import TriangulationParams, validate_separation
 from pipeline.results import Calibration, read_calibration, write_calibration
-import pipeline.triangulate
 from pipeline.triangulate import (
     Points3D,
     candidate_pairs,
