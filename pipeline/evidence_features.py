@@ -239,7 +239,8 @@ def as_strong_per_frame(
     if n == 0:
         return np.zeros(0)
     length = max(1, round(CROWD_BLOCK_S * fps))
-    block = np.asarray(frame, np.int64) // length
+    frame = np.asarray(frame, np.int64)
+    block = frame // length
     snr = np.asarray(snr, np.float64)
     order = np.lexsort((snr, block))  # by block, then ascending SNR
     b, v = block[order], snr[order]
@@ -249,7 +250,7 @@ def as_strong_per_frame(
     block_end = np.r_[block_end[1:], n]  # one past each block's last candidate
     slot = np.searchsorted(block_ids, b)
     last_frame = np.zeros(len(block_ids), np.int64)
-    np.maximum.at(last_frame, slot, np.asarray(frame, np.int64)[order])
+    np.maximum.at(last_frame, slot, frame[order])
     frames = last_frame - block_ids * length + 1
     out = np.empty(n)
     out[order] = (block_end[slot] - first_of_tie) / frames[slot]
