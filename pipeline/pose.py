@@ -20,14 +20,15 @@ found by robust non-linear least squares on how far the rays miss each other:
 * starts: ``R = I`` with ``t̂`` along ``x`` and ``y`` (side-by-side set-ups; the sign is
   decided by cheirality, so ``±`` are the same start) and the essential-matrix
   solution of the linear 8-point algorithm on bearings;
-* outliers (two different fireflies) are handled by a Cauchy loss whose scale
-  shrinks from 10° to ``min_threshold_deg`` (graduated non-convexity, which widens the
-  starts' basins), then an explicit, noise-adaptive inlier threshold and a plain
-  least-squares refit on the inliers. The loss grows only logarithmically, so a few
-  pairs 10° off cannot outweigh many that fit to 0.05°: a soft-L1 loss (growing as the
-  residual) preferred a pose 10° off on a simulated 4K wind night whose 66 pairs held 5
-  such outliers. On synthetic pairs this holds up to about 50 % mismatched pairs; beyond
-  that the pose is unreliable (and a warning says so).
+* outliers (two different fireflies) are handled by a Cauchy loss at
+  ``min_threshold_deg``, reached from each start both straight and with a scale
+  shrinking from 10° (graduated non-convexity, which widens the starts' basins but lets
+  a sixth of mismatched pairs pull a near start away), then an explicit, noise-adaptive
+  inlier threshold and a plain least-squares refit on the inliers. The loss grows only
+  logarithmically, so a few pairs 10° off cannot outweigh many that fit to 0.05°: a
+  soft-L1 loss (growing as the residual) preferred a pose 10° off on a simulated 4K wind
+  night whose 66 pairs held 5 such outliers. On synthetic pairs this holds up to about
+  50 % mismatched pairs; beyond that the pose is unreliable (and a warning says so).
 
 ``R`` is parameterised by a rotation vector applied to the start rotation and ``t̂`` by
 a 2-vector in the plane orthogonal to the start translation, so neither has a
@@ -261,7 +262,7 @@ def estimate_pose(
         Pose(np.eye(3), np.array([0.0, 1.0, 0.0])),
         essential_matrix_pose(s1, s2),
     ]
-    fits = [_graduated_fit(s1, s2, start, scale) for start in starts]
+    fits = [_fit_from(s1, s2, start, scale) for start in starts]
     pose = _fit(b1, b2, min(fits, key=lambda fit: fit[1])[0], loss=_ROBUST_LOSS, scale=scale)[0]
     threshold = _threshold(normalised_gap(closest_approach(b1, b2, pose)), params)
     pose = _in_front(b1, b2, pose, threshold)
@@ -312,17 +313,24 @@ def essential_matrix_pose(bearing1: FloatArray, bearing2: FloatArray) -> Pose:
     return max(candidates, key=lambda pose: _n_in_front(closest_approach(bearing1, bearing2, pose)))
 
 
-def _graduated_fit(b1: FloatArray, b2: FloatArray, start: Pose, floor: float) -> tuple[Pose, float]:
-    """Robust fit with a loss scale shrinking from 10° to ``floor`` (radians).
+def _fit_from(b1: FloatArray, b2: FloatArray, start: Pose, floor: float) -> tuple[Pose, float]:
+    """Robust fit from ``start``, straight at ``floor`` (radians) and graduated from 10°.
 
     A wide scale first smooths away the local minima that outliers create around a
-    distant start (graduated non-convexity); returns the pose and its final cost.
+    distant start (graduated non-convexity), but it also weighs mismatched pairs nearly
+    fully, and they can pull a near start into a wrong basin that the fit at ``floor``
+    then keeps. Of the two ends, the one with the lower final cost is returned, with
+    that cost.
     """
-    scales = [s for s in np.radians(_GRADUATED_SCALES_DEG) if s > floor] + [floor]
-    pose, cost = start, np.inf
+    scales = [s for s in np.radians(_GRADUATED_SCALES_DEG) if s > floor]
+    graduated = start
     for scale in scales:
-        pose, cost = _fit(b1, b2, pose, loss=_ROBUST_LOSS, scale=scale, max_nfev=_START_NFEV)
-    return pose, cost
+        graduated = _fit(b1, b2, graduated, loss=_ROBUST_LOSS, scale=scale, max_nfev=_START_NFEV)[0]
+    ends = [
+        _fit(b1, b2, pose, loss=_ROBUST_LOSS, scale=floor, max_nfev=_START_NFEV)
+        for pose in (start, graduated)
+    ]
+    return min(ends, key=lambda end: end[1])
 
 
 def _fit(
