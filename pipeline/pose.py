@@ -328,7 +328,7 @@ def _fit_from(b1: FloatArray, b2: FloatArray, start: Pose, floor: float) -> tupl
         graduated = _fit(b1, b2, graduated, loss=_ROBUST_LOSS, scale=scale, max_nfev=_START_NFEV)[0]
     ends = [
         _fit(b1, b2, pose, loss=_ROBUST_LOSS, scale=floor, max_nfev=_START_NFEV)
-        for pose in (start, graduated)
+        for pose in ((start,) if graduated is start else (start, graduated))
     ]
     return min(ends, key=lambda end: end[1])
 
