@@ -86,12 +86,18 @@ class Evidence:
     flicker_duty : ndarray of float64, or None
         Its `pipeline.flicker.flicker_duty`; None where it was not measured (imported
         detections, the baseline, evidence of earlier releases).
+    key_frames : ndarray of int64, or None
+        Not per candidate: the camera's frames the encoder coded whole
+        (`pipeline.video.Frame.key`). Their grain is renewed at once, so both cameras
+        burst with speckle at the same frame indices, which `pipeline.sync` must not
+        take for a delay. None where unknown (imported detections, earlier releases).
     """
 
     verdict: NDArray[np.int8]
     lit_frames: NDArray[np.int64]
     chain: NDArray[np.intp]
     flicker_duty: NDArray[np.float64] | None = None
+    key_frames: NDArray[np.int64] | None = None
 
     def __len__(self) -> int:
         return len(self.verdict)
@@ -118,6 +124,8 @@ class Evidence:
         }
         if self.flicker_duty is not None:
             arrays["flicker_duty"] = self.flicker_duty
+        if self.key_frames is not None:
+            arrays["key_frames"] = self.key_frames
         np.savez_compressed(path, **arrays)
 
     @classmethod
@@ -127,7 +135,7 @@ class Evidence:
             # Evidence of earlier releases has no chains: each candidate its own.
             chain = data["chain"] if "chain" in data else np.arange(len(verdict))
             duty = data.get("flicker_duty")
-            return cls(verdict, data["lit_frames"], chain, duty)
+            return cls(verdict, data["lit_frames"], chain, duty, data.get("key_frames"))
 
     @classmethod
     def imported(cls, detections: Detections, width: int, params: AcceptanceParams) -> Evidence:

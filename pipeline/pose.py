@@ -615,7 +615,8 @@ def calibrate_pose(
     (`fit_warnings`) or keeps few inliers. Such a fit is refitted from the flashes at or
     above each SNR of ``params.refit_snr`` in turn: the first fit without warnings is
     kept, else the one with the fewest, then the smallest median residual (its warnings
-    kept).
+    kept). A fit that fails outright (too few pairs agree: on a grainy night speckle
+    passes as confident flashes) is refitted from the brighter flashes in the same way.
 
     Parameters
     ----------
@@ -631,9 +632,11 @@ def calibrate_pose(
     Raises
     ------
     PoseError
-        If no pose can be fitted from the flashes given (too few pairs or inliers).
+        If no pose can be fitted from the flashes given, nor from the brighter ones
+        alone (too few pairs or inliers).
     """
     best: Calibrated | None = None
+    failed: PoseError | None = None
     tried: list[dict[str, Any]] = []
     for min_snr in (None, *params.refit_snr):
         sel1, sel2 = (d if min_snr is None else d.select(d.snr >= min_snr) for d in (det1, det2))
@@ -641,10 +644,13 @@ def calibrate_pose(
         try:
             estimate = estimate_pose(pairs, params)
         except PoseError as error:
-            if best is None:
-                raise
             tried.append({"min_snr": min_snr, "n_pairs": len(pairs), "error": str(error)})
-            break  # brighter floors only leave fewer pairs
+            if best is not None:
+                break  # a fit exists; brighter floors only hold fewer flashes
+            # No fit yet: speckle as confident as flashes (a grainy night) can leave too
+            # few pairs agreeing; the brighter flashes alone may still agree.
+            failed = failed or error
+            continue
         warnings = [*estimate.warnings, *fit_warnings(estimate, width, params)]
         residual = median_residual_px(estimate, width)
         tried.append(
@@ -660,7 +666,14 @@ def calibrate_pose(
             return fit
         if best is None or _doubt(fit, width) < _doubt(best, width):
             best = fit
-    assert best is not None  # the first fit either succeeded or raised
+    if best is None:
+        assert failed is not None
+        floors = ", ".join(f"{snr:g}" for snr in params.refit_snr)
+        raise PoseError(
+            f"{failed}; nor from the flashes of at least {floors} σ alone"
+            if floors
+            else str(failed)
+        ) from None
     return best
 
 

@@ -10,12 +10,13 @@ these call; nothing here knows whether it runs in the CLI or in a Celery worker.
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from pipeline.acceptance import Evidence, assess, confirm, refined, stereo_gates
 from pipeline.artifacts import (
@@ -172,7 +173,13 @@ def track(ctx: StageContext) -> StageResult:
     faint = ctx.path(FAINT_CHUNK_NPZ)
     faint.parent.mkdir(parents=True, exist_ok=True)
     result.faint_peaks.to_npz(faint, spots_only=True)
-    metrics = {"camera": camera, "start": start, "stop": stop, **asdict(result.stats)}
+    metrics = {
+        "camera": camera,
+        "start": start,
+        "stop": stop,
+        **asdict(result.stats),
+        "key_frames": result.key_frames.tolist(),
+    }
     return StageResult(metrics=metrics)
 
 
@@ -187,6 +194,15 @@ def _tracking_totals(chunk_metrics: Iterable[Mapping[str, Any]]) -> dict[str, An
     totals["seconds"] = seconds
     totals["fps"] = totals["frames"] / seconds if seconds > 0 else None
     return totals
+
+
+def _key_frames(chunk_metrics: Iterable[Mapping[str, Any]]) -> NDArray[np.int64] | None:
+    """The key frames of a camera's chunks, ascending; None if a chunk did not record
+    them (tracked by an earlier release)."""
+    parts = [m.get("key_frames") for m in chunk_metrics]
+    if not parts or any(part is None for part in parts):
+        return None
+    return np.unique(np.concatenate([np.asarray(p, np.int64) for p in parts]))
 
 
 def merge(ctx: StageContext) -> StageResult:
@@ -221,11 +237,11 @@ def merge(ctx: StageContext) -> StageResult:
         ctx.params.flicker,
         faint,
     )
+    chunk_metrics = [read_json(p)["metrics"] for p in ctx.paths(CHUNK_METRICS_JSON) if p.exists()]
+    evidence = replace(evidence, key_frames=_key_frames(chunk_metrics))
     candidates.to_npz(ctx.path(CANDIDATES_NPZ))
     evidence.save(ctx.path(EVIDENCE_NPZ))
-    tracking = _tracking_totals(
-        read_json(p)["metrics"] for p in ctx.paths(CHUNK_METRICS_JSON) if p.exists()
-    )
+    tracking = _tracking_totals(chunk_metrics)
     metrics = {
         "camera": camera,
         "n_chunks": len(chunks),
@@ -285,12 +301,13 @@ def _accepted(ctx: StageContext) -> tuple[Detections, Detections]:
 def sync(ctx: StageContext) -> StageResult:
     """Frame delay between the cameras from their per-frame flash counts."""
     probe = ctx.probe
-    det1, det2 = _confident(ctx)
+    (det1, det2), (ev1, ev2) = _candidates(ctx)
     estimate = estimate_delay(
-        det1.counts_per_frame(probe.n_frames[1]),
-        det2.counts_per_frame(probe.n_frames[2]),
+        det1.select(ev1.confident).counts_per_frame(probe.n_frames[1]),
+        det2.select(ev2.confident).counts_per_frame(probe.n_frames[2]),
         probe.fps,
         ctx.params.sync,
+        key_frames=(ev1.key_frames, ev2.key_frames),
     )
     write_json(ctx.path(SYNC_JSON), estimate.to_dict())
     metrics = {

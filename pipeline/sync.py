@@ -5,7 +5,11 @@ signal shifted in time (both see most of the same flashes). The delay is the lag
 their cross-correlation, made robust as in Sarfati's oorb:
 
 1. frames whose count is an outlier (transient light pollution makes counts explode)
-   are neutralised, and leading / trailing empty stretches are trimmed;
+   are neutralised, and so are the key frames (both cameras' encoders code a frame
+   whole at the same indices, every second or so, and on a grainy night each such
+   frame bursts with speckle confident enough to count: in step with each other, at
+   lags of whole key intervals, whatever the true delay); leading / trailing empty
+   stretches are trimmed;
 2. RANSAC: many random windows of camera 1 are each matched against camera 2 over the
    whole lag range by zero-normalised cross-correlation (one batched FFT), each window
    votes for its best lag;
@@ -91,6 +95,7 @@ def estimate_delay(
     counts2: ArrayLike,
     fps: float,
     params: SyncParams = SyncParams(),  # noqa: B008 - frozen, immutable default
+    key_frames: tuple[ArrayLike | None, ArrayLike | None] = (None, None),
 ) -> DelayEstimate:
     """Frame delay between two cameras from their per-frame flash counts.
 
@@ -104,6 +109,9 @@ def estimate_delay(
         parameters to frames).
     params : SyncParams
         Lag bound, RANSAC window length and count, agreement tolerance, seed.
+    key_frames : (array_like of int or None, array_like of int or None)
+        Each camera's key frames (`pipeline.video.Frame.key`), neutralised like outlier
+        frames; None where unknown.
 
     Returns
     -------
@@ -121,8 +129,10 @@ def estimate_delay(
     """
     if not (np.isfinite(fps) and fps > 0):
         raise ValueError(f"fps must be a positive number, got {fps!r}")
-    clean1 = clean_counts(_as_counts(counts1, "counts1"), params.outlier_mads, "camera 1")
-    clean2 = clean_counts(_as_counts(counts2, "counts2"), params.outlier_mads, "camera 2")
+    clean1, clean2 = (
+        clean_counts(_as_counts(counts, f"counts{i}"), params.outlier_mads, f"camera {i}", keys)
+        for i, counts, keys in ((1, counts1, key_frames[0]), (2, counts2, key_frames[1]))
+    )
     max_lag = max(1, round(params.max_delay_s * fps))
     window = max(2, round(params.window_s * fps))
     active1 = clean1.last - clean1.first
@@ -190,8 +200,11 @@ class CleanCounts(NamedTuple):
         return out
 
 
-def clean_counts(counts: IntArray, outlier_mads: float, name: str = "camera") -> CleanCounts:
-    """Neutralise outlier frames and trim the empty ends of a count series.
+def clean_counts(
+    counts: IntArray, outlier_mads: float, name: str = "camera", skip: ArrayLike | None = None
+) -> CleanCounts:
+    """Neutralise outlier frames (and the frames to `skip`) and trim the empty ends of a
+    count series.
 
     Parameters
     ----------
@@ -202,13 +215,16 @@ def clean_counts(counts: IntArray, outlier_mads: float, name: str = "camera") ->
         counts are outliers (light pollution makes counts explode).
     name : str
         Camera name for error messages.
+    skip : array_like of int, optional
+        Frames neutralised like outliers whatever their count (key frames); indices
+        outside the series are ignored.
 
     Returns
     -------
     CleanCounts
-        Outlier frames are replaced by the mean count of the clean frames of the active
-        stretch ``[first, last)`` (leading and trailing empty stretches trimmed), so that
-        they add nothing to a mean-subtracted correlation.
+        Outlier and skipped frames are replaced by the mean count of the clean frames of
+        the active stretch ``[first, last)`` (leading and trailing empty stretches
+        trimmed), so that they add nothing to a mean-subtracted correlation.
 
     Raises
     ------
@@ -221,6 +237,9 @@ def clean_counts(counts: IntArray, outlier_mads: float, name: str = "camera") ->
     median = np.median(nonzero)
     sigma = max(_MAD_TO_SIGMA * float(np.median(np.abs(nonzero - median))), 1.0)
     outlier = counts > median + outlier_mads * sigma
+    if skip is not None:
+        skipped = np.asarray(skip, dtype=np.int64)
+        outlier[skipped[(skipped >= 0) & (skipped < len(counts))]] = True
     flash_frames = np.flatnonzero((counts > 0) & ~outlier)
     if len(flash_frames) == 0:
         raise SyncError(f"{name} has only outlier frames (light pollution?), no usable flashes")

@@ -158,11 +158,14 @@ class TrackingResult:
     ``faint_peaks`` are the local maxima between ``lit_threshold`` and ``threshold`` σ
     (frame, position and SNR only; never classified): too faint to be candidates, they
     still tell the acceptance stage that a spot is lit (`pipeline.acceptance.assess`).
+    ``key_frames`` are the frames of the range the encoder coded whole (`Frame.key`):
+    grain renewed at once makes bursts of speckle there (`pipeline.sync`).
     """
 
     detections: Detections
     faint_peaks: Detections
     stats: TrackingStats
+    key_frames: NDArray[np.int64]
 
 
 def track(
@@ -217,12 +220,15 @@ def track_with_stats(
     detector = _FrameDetector(info, params, start)
     scorer = _PatchScorer(classifier)
     rows, faint_rows = _RowCollector(), _RowCollector()
+    key_frames: list[int] = []
     counter = _ProgressCounter(progress)
     with _opencv_threads(1):
         for frame in iter_frames(info, first, stop):
             found = detector.process(frame)
             if found is None:
                 continue
+            if frame.key:
+                key_frames.append(frame.index)
             blobs, faint = found
             rows.add(_candidate_rows(frame.index, blobs, detector.recurrence(blobs)))
             faint_rows.add(_faint_rows(frame.index, faint))
@@ -242,7 +248,7 @@ def track_with_stats(
             stats.dropped_over_cap,
             stats.flooded_frames,
         )
-    return TrackingResult(detections, faint_peaks, stats)
+    return TrackingResult(detections, faint_peaks, stats, np.array(key_frames, np.int64))
 
 
 @contextmanager

@@ -71,6 +71,9 @@ class Frame:
         (2, 2 for 4:2:0).
     encoding : YuvEncoding
         Matrix and range for converting to RGB.
+    key : bool
+        The encoder coded the picture whole (a key or intra frame), not from the frames
+        before it: its grain is renewed at once.
     """
 
     index: int
@@ -78,6 +81,7 @@ class Frame:
     u: NDArray[np.uint8]
     v: NDArray[np.uint8]
     encoding: YuvEncoding = field(default=YuvEncoding("bt601", False))
+    key: bool = False
 
     @property
     def height(self) -> int:
@@ -480,7 +484,8 @@ def _to_frame(picture: av.VideoFrame, index: int, encoding: YuvEncoding) -> Fram
     if picture.format.name not in _PLANAR_FORMATS:
         picture = picture.reformat(format="yuv420p")
     y, u, v = (_plane_array(p) for p in picture.planes[:3])
-    return Frame(index=index, y=y, u=u, v=v, encoding=encoding)
+    key = bool(picture.key_frame) or picture.pict_type == av.video.frame.PictureType.I
+    return Frame(index=index, y=y, u=u, v=v, encoding=encoding, key=key)
 
 
 def _plane_array(plane: av.video.plane.VideoPlane) -> NDArray[np.uint8]:

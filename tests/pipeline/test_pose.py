@@ -291,6 +291,32 @@ def test_a_pose_pulled_by_faint_artifacts_is_refitted_from_the_bright_flashes() 
     assert max(errors_deg(fit.estimate.pose, truth)) < 0.05
 
 
+def test_a_fit_that_fails_outright_is_refitted_from_the_bright_flashes() -> None:
+    # A grainy night: most frames pair speckle as confident as a flash (near the floor)
+    # with an unrelated spot, so too few pairs agree for any fit; the flashes of 20 σ
+    # agree (a 4K night, hard-noisy s12: 11 of 66 pairs agreed, 75 of 78 at ≥ 12 σ).
+    rng = np.random.default_rng(11)
+    truth, _, b1, b2 = scene(rng, [0, 1, 0], n=400)
+    b1 = jitter(rng, b1, 0.02)
+    n_bad = 340
+    b2 = b2.copy()
+    b2[:n_bad] = rng.normal(size=(n_bad, 3))
+    b2[:n_bad] /= np.linalg.norm(b2[:n_bad], axis=1, keepdims=True)
+    snr = np.where(np.arange(len(b1)) < n_bad, 9.0, 20.0)
+    det1, det2 = night_detections(b1, b2, snr)
+    with pytest.raises(PoseError, match="agree on a pose"):
+        calibrate_pose(det1, det2, 0, WIDTH, PoseParams(refit_snr=()))
+
+    fit = calibrate_pose(det1, det2, 0, WIDTH)
+    assert fit.min_snr == 12.0 and fit.warnings == []
+    assert "error" in fit.tried[0] and fit.tried[1]["n_inliers"] >= 55
+    assert max(errors_deg(fit.estimate.pose, truth)) < 0.05
+
+    hopeless = night_detections(b1, b2[rng.permutation(len(b2))], snr)
+    with pytest.raises(PoseError, match="nor from the flashes of at least 12, 16, 24 σ"):
+        calibrate_pose(*hopeless, 0, WIDTH)
+
+
 def test_a_clean_night_keeps_every_flash_and_a_hopeless_one_keeps_its_best_fit() -> None:
     rng = np.random.default_rng(8)
     _, _, b1, b2 = scene(rng, [0, 1, 0], n=300)

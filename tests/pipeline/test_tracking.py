@@ -298,6 +298,11 @@ def test_chunks_equal_the_unchunked_run_bit_for_bit(
         Detections.concat(p.faint_peaks for p in parts),
         _in_range(whole.faint_peaks, cuts[0], cuts[-1]),
     )
+    keys = whole.key_frames
+    assert len(keys) > 0
+    assert np.concatenate([p.key_frames for p in parts]).tolist() == [
+        k for k in keys.tolist() if cuts[0] <= k < cuts[-1]
+    ]
 
 
 @pytest.mark.parametrize("background", ["ewma", "box"])

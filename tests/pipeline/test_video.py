@@ -141,6 +141,18 @@ def test_a_range_decodes_the_same_frames_as_a_full_pass(
         assert np.array_equal(frame.v, reference.v)
 
 
+def test_frames_coded_whole_are_flagged_key(camera: VideoInfo, decoded: list[Frame]) -> None:
+    keys = [f.index for f in iter_frames(camera) if f.key]
+    if camera.codec == "hevc":  # x265 at a fixed interval: every 8th frame of each chapter
+        assert keys == [0, 8, 16, 24, 30, 38, 46, 54, 55, 63, 71]
+    else:  # x264 also codes a frame whole where the picture changes a lot (scene cut)
+        assert {0, 8, 30, 55} <= set(keys) and len(keys) < N_FRAMES // 2
+    # A range decoded on its own flags the same frames.
+    assert [f.index for f in iter_frames(camera, 41, 60) if f.key] == [
+        k for k in keys if 41 <= k < 60
+    ]
+
+
 def test_ten_bit_video_is_handed_out_as_8_bit_planes(tmp_path: Path) -> None:
     pictures = [vf.index_picture(i) for i in range(6)]
     path = vf.write_video(tmp_path / "hdr.mp4", pictures, codec="hevc", pix_fmt="yuv420p10le")
