@@ -270,15 +270,27 @@ def night_detections(b1: np.ndarray, b2: np.ndarray, snr: np.ndarray) -> tuple[D
     )
 
 
+def faintly_mismatched(
+    seed: int, n: int, n_bad: int, random_partners: bool
+) -> tuple[Pose, np.ndarray, np.ndarray, np.ndarray]:
+    """Bearings of `n` flash pairs (0.02° of noise) whose first `n_bad` pair a spot near
+    the confident floor (9 σ) with another pair's flash, or with a random direction;
+    the rest are flashes of 20 σ. Returns the pose, both bearings and the SNRs."""
+    rng = np.random.default_rng(seed)
+    truth, _, b1, b2 = scene(rng, [0, 1, 0], n=n)
+    b1, b2 = jitter(rng, b1, 0.02), b2.copy()
+    if random_partners:
+        b2[:n_bad] = rng.normal(size=(n_bad, 3))
+        b2[:n_bad] /= np.linalg.norm(b2[:n_bad], axis=1, keepdims=True)
+    else:
+        b2[:n_bad] = b2[rng.permutation(n_bad)]
+    return truth, b1, b2, np.where(np.arange(n) < n_bad, 9.0, 20.0)
+
+
 def test_a_pose_pulled_by_faint_artifacts_is_refitted_from_the_bright_flashes() -> None:
-    rng = np.random.default_rng(7)
-    truth, _, b1, b2 = scene(rng, [0, 1, 0], n=300)
-    b1 = jitter(rng, b1, 0.02)
     # 60 % of the frames pair a flash with an unrelated spot near the confident floor.
     n_bad = 180
-    b2 = b2.copy()
-    b2[:n_bad] = b2[rng.permutation(n_bad)]
-    snr = np.where(np.arange(len(b1)) < n_bad, 9.0, 20.0)
+    truth, b1, b2, snr = faintly_mismatched(7, 300, n_bad, random_partners=False)
     det1, det2 = night_detections(b1, b2, snr)
 
     plain = calibrate_pose(det1, det2, 0, WIDTH, PoseParams(refit_snr=()))
@@ -295,14 +307,7 @@ def test_a_fit_that_fails_outright_is_refitted_from_the_bright_flashes() -> None
     # A grainy night: most frames pair speckle as confident as a flash (near the floor)
     # with an unrelated spot, so too few pairs agree for any fit; the flashes of 20 σ
     # agree (a 4K night, hard-noisy s12: 11 of 66 pairs agreed, 75 of 78 at ≥ 12 σ).
-    rng = np.random.default_rng(11)
-    truth, _, b1, b2 = scene(rng, [0, 1, 0], n=400)
-    b1 = jitter(rng, b1, 0.02)
-    n_bad = 340
-    b2 = b2.copy()
-    b2[:n_bad] = rng.normal(size=(n_bad, 3))
-    b2[:n_bad] /= np.linalg.norm(b2[:n_bad], axis=1, keepdims=True)
-    snr = np.where(np.arange(len(b1)) < n_bad, 9.0, 20.0)
+    truth, b1, b2, snr = faintly_mismatched(11, 400, 340, random_partners=True)
     det1, det2 = night_detections(b1, b2, snr)
     with pytest.raises(PoseError, match="agree on a pose"):
         calibrate_pose(det1, det2, 0, WIDTH, PoseParams(refit_snr=()))
@@ -312,7 +317,7 @@ def test_a_fit_that_fails_outright_is_refitted_from_the_bright_flashes() -> None
     assert "error" in fit.tried[0] and fit.tried[1]["n_inliers"] >= 55
     assert max(errors_deg(fit.estimate.pose, truth)) < 0.05
 
-    hopeless = night_detections(b1, b2[rng.permutation(len(b2))], snr)
+    hopeless = night_detections(b1, b2[np.random.default_rng(0).permutation(len(b2))], snr)
     with pytest.raises(PoseError, match="nor from the flashes of at least 12, 16, 24 σ"):
         calibrate_pose(*hopeless, 0, WIDTH)
 
