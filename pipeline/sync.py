@@ -38,6 +38,9 @@ IntArray = NDArray[np.int64]
 _MAD_TO_SIGMA = 1.4826
 #: RANSAC windows correlated per FFT batch.
 _WINDOW_BATCH = 50
+#: Key frames are neutralised only while they are at most this share of a camera's
+#: frames: an intra-only recording (every frame a key frame) renews its grain evenly.
+MAX_KEY_FRAME_SHARE = 0.25
 
 
 class SyncError(ValueError):
@@ -111,7 +114,7 @@ def estimate_delay(
         Lag bound, RANSAC window length and count, agreement tolerance, seed.
     key_frames : (array_like of int or None, array_like of int or None)
         Each camera's key frames (`pipeline.video.Frame.key`), neutralised like outlier
-        frames; None where unknown.
+        frames where they are rare (`MAX_KEY_FRAME_SHARE`); None where unknown.
 
     Returns
     -------
@@ -130,8 +133,11 @@ def estimate_delay(
     if not (np.isfinite(fps) and fps > 0):
         raise ValueError(f"fps must be a positive number, got {fps!r}")
     clean1, clean2 = (
-        clean_counts(_as_counts(counts, f"counts{i}"), params.outlier_mads, f"camera {i}", keys)
-        for i, counts, keys in ((1, counts1, key_frames[0]), (2, counts2, key_frames[1]))
+        clean_counts(series, params.outlier_mads, f"camera {i}", _rare(keys, len(series)))
+        for i, series, keys in (
+            (1, _as_counts(counts1, "counts1"), key_frames[0]),
+            (2, _as_counts(counts2, "counts2"), key_frames[1]),
+        )
     )
     max_lag = max(1, round(params.max_delay_s * fps))
     window = max(2, round(params.window_s * fps))
@@ -340,6 +346,13 @@ def _as_counts(counts: ArrayLike, name: str) -> IntArray:
     if not np.all(np.isfinite(arr)) or np.any(arr < 0):
         raise ValueError(f"{name} must hold finite non-negative counts")
     return arr.astype(np.int64)
+
+
+def _rare(key_frames: ArrayLike | None, n_frames: int) -> ArrayLike | None:
+    """`key_frames` if they are at most `MAX_KEY_FRAME_SHARE` of `n_frames`, else None."""
+    if key_frames is None or len(np.asarray(key_frames)) > MAX_KEY_FRAME_SHARE * n_frames:
+        return None
+    return key_frames
 
 
 def _window_starts(clean1: CleanCounts, window: int, params: SyncParams) -> IntArray:

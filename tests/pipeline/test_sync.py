@@ -198,6 +198,16 @@ def test_key_frame_bursts_in_step_do_not_pull_the_delay() -> None:
     assert sum(d != -20 for d in unaware) >= 6  # 8 of 10 when written
 
 
+def test_an_intra_only_recording_keeps_every_frame() -> None:
+    # Every frame a key frame (an all-intra mode): nothing bursts, nothing is neutralised.
+    counts1, counts2 = flash_counts(np.random.default_rng(5), -20, 900, 900, n_trains=40)
+    every = np.arange(900)
+    plain = estimate_delay(counts1, counts2, FPS)
+    intra = estimate_delay(counts1, counts2, FPS, key_frames=(every, every))
+    assert intra.delay_frames == plain.delay_frames == -20
+    assert np.array_equal(intra.votes, plain.votes)
+
+
 def test_key_frames_are_neutral_like_outliers() -> None:
     counts = np.zeros(100, dtype=np.int64)
     counts[20:80] = np.tile([0, 1, 2, 1], 15)
