@@ -302,9 +302,10 @@ def sync(ctx: StageContext) -> StageResult:
     """Frame delay between the cameras from their per-frame flash counts."""
     probe = ctx.probe
     (det1, det2), (ev1, ev2) = _candidates(ctx)
+    confident1, confident2 = det1.select(ev1.confident), det2.select(ev2.confident)
     estimate = estimate_delay(
-        det1.select(ev1.confident).counts_per_frame(probe.n_frames[1]),
-        det2.select(ev2.confident).counts_per_frame(probe.n_frames[2]),
+        confident1.counts_per_frame(probe.n_frames[1]),
+        confident2.counts_per_frame(probe.n_frames[2]),
         probe.fps,
         ctx.params.sync,
         key_frames=(ev1.key_frames, ev2.key_frames),
@@ -315,8 +316,10 @@ def sync(ctx: StageContext) -> StageResult:
         "delay_s": estimate.delay_frames / probe.fps,
         "delay_confidence": estimate.confidence,
         "n_windows": estimate.n_windows,
-        "n_flashes_cam1": len(det1),
-        "n_flashes_cam2": len(det2),
+        "n_flashes_cam1": len(confident1),
+        "n_flashes_cam2": len(confident2),
+        "frames_set_aside_cam1": estimate.set_aside[0],
+        "frames_set_aside_cam2": estimate.set_aside[1],
     }
     return StageResult(metrics=metrics, warnings=list(estimate.warnings))
 

@@ -68,6 +68,9 @@ class DelayEstimate:
         (1 would be a perfect match), for the report plot.
     warnings : tuple of str
         Reasons to distrust the estimate (low confidence, delay at the search bound).
+    set_aside : (int, int)
+        Frames of camera 1 and camera 2 neutralised before correlating (light-pollution
+        outliers and key frames, `clean_counts`).
     """
 
     delay_frames: int
@@ -77,6 +80,7 @@ class DelayEstimate:
     lags: IntArray
     correlation: FloatArray
     warnings: tuple[str, ...] = field(default=())
+    set_aside: tuple[int, int] = (0, 0)
 
     def to_dict(self, include_curve: bool = True) -> dict[str, Any]:
         """JSON-ready summary; ``include_curve=False`` leaves out the (long) curve."""
@@ -86,6 +90,7 @@ class DelayEstimate:
             "n_windows": self.n_windows,
             "votes": self.votes.tolist(),
             "warnings": list(self.warnings),
+            "frames_set_aside": list(self.set_aside),
         }
         if include_curve:
             out["lags"] = self.lags.tolist()
@@ -179,6 +184,7 @@ def estimate_delay(
         lags=lags,
         correlation=correlation,
         warnings=tuple(warnings),
+        set_aside=(clean1.set_aside, clean2.set_aside),
     )
 
 
@@ -193,6 +199,8 @@ class CleanCounts(NamedTuple):
     last: int
     #: Frames with a clean (non-outlier) non-zero count.
     flash_frames: IntArray
+    #: Frames neutralised (outliers and skipped frames).
+    set_aside: int
 
     def centred(self) -> FloatArray:
         """Series minus its active-stretch mean, zero outside ``[first, last)``.
@@ -252,7 +260,9 @@ def clean_counts(
     first, last = int(flash_frames[0]), int(flash_frames[-1]) + 1
     clean_active = counts[first:last][~outlier[first:last]]
     series = np.where(outlier, clean_active.mean(), counts.astype(np.float64))
-    return CleanCounts(series, first, last, flash_frames.astype(np.int64))
+    return CleanCounts(
+        series, first, last, flash_frames.astype(np.int64), int(np.count_nonzero(outlier))
+    )
 
 
 def global_correlation(y1: FloatArray, y2: FloatArray, max_lag: int) -> tuple[IntArray, FloatArray]:

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from pipeline import artifacts
+from pipeline.acceptance import Evidence
 from pipeline.cli import main
 from pipeline.detection_eval import score_run
 from pipeline.detections import Detections
@@ -32,6 +33,7 @@ from pipeline.params import PatternParams
 from pipeline.patterns import night_patterns
 from pipeline.results import FLASH_PATTERN_COLUMNS, read_flash_patterns, read_trajectories
 from pipeline.simulation.truth import GroundTruth
+from pipeline.video import iter_frames, probe_video
 from tests.pipeline.video_factory import with_creation_time
 
 pytestmark = pytest.mark.slow
@@ -306,6 +308,15 @@ def test_chunked_tracking_gives_the_same_results(simulated, tmp_path) -> None:
         flashes = artifacts.flashes_name(camera)
         assert (whole / flashes).read_text() == (chunked / flashes).read_text()
     assert (whole / "trajectories.csv").read_text() == (chunked / "trajectories.csv").read_text()
+    # The key frames, recorded chunk by chunk, are the decoder's; sync sets them aside.
+    evidence = artifacts.EVIDENCE_NPZ.format(camera=1)
+    keys = Evidence.load(whole / evidence).key_frames
+    assert keys is not None
+    decoded = [f.index for f in iter_frames(probe_video(recording.cam1)) if f.key]
+    assert keys.tolist() == decoded and len(decoded) >= 10
+    np.testing.assert_array_equal(Evidence.load(chunked / evidence).key_frames, keys)
+    sync = json.loads((whole / artifacts.SYNC_JSON).read_text())
+    assert sync["frames_set_aside"][0] >= len(keys)
 
 
 def test_hevc_and_chapters(simulated, tmp_path) -> None:

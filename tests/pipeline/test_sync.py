@@ -88,6 +88,7 @@ def test_outlier_frames_are_neutral_and_empty_ends_trimmed() -> None:
     clean = clean_counts(counts, outlier_mads=6.0)
     assert (clean.first, clean.last) == (21, 80)
     assert 50 not in clean.flash_frames
+    assert clean.set_aside == 1
     centred = clean.centred()
     # The outlier frame holds the mean of the clean active frames: zero once centred.
     assert centred[50] == pytest.approx(0.0)
@@ -192,7 +193,9 @@ def test_key_frame_bursts_in_step_do_not_pull_the_delay() -> None:
         counts1, counts2 = flash_counts(rng, -20, 360, 360, n_trains=16, false_rate=0.2)
         counts1[keys] += rng.poisson(3, len(keys))
         counts2[keys] += rng.poisson(3, len(keys))
-        found.append(estimate_delay(counts1, counts2, FPS, key_frames=(keys, keys)).delay_frames)
+        estimate = estimate_delay(counts1, counts2, FPS, key_frames=(keys, keys))
+        assert estimate.set_aside == (len(keys), len(keys))
+        found.append(estimate.delay_frames)
         unaware.append(estimate_delay(counts1, counts2, FPS).delay_frames)
     assert found == [-20] * 10
     assert sum(d != -20 for d in unaware) >= 6  # 8 of 10 when written
@@ -206,6 +209,7 @@ def test_an_intra_only_recording_keeps_every_frame() -> None:
     intra = estimate_delay(counts1, counts2, FPS, key_frames=(every, every))
     assert intra.delay_frames == plain.delay_frames == -20
     assert np.array_equal(intra.votes, plain.votes)
+    assert intra.set_aside == plain.set_aside == (0, 0)
 
 
 def test_key_frames_are_neutral_like_outliers() -> None:
@@ -214,5 +218,6 @@ def test_key_frames_are_neutral_like_outliers() -> None:
     counts[[30, 60]] = 4
     clean = clean_counts(counts, outlier_mads=6.0, skip=np.array([-5, 30, 60, 20, 400]))
     assert not np.isin([20, 30, 60], clean.flash_frames).any()
+    assert clean.set_aside == 3
     assert clean.first == 21
     assert clean.centred()[[30, 60]] == pytest.approx([0.0, 0.0])
