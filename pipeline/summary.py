@@ -75,6 +75,9 @@ def summarise(records: Mapping[Unit, StageResult], params: ProcessParams) -> dic
         "counts": counts,
         "delay_frames": value("sync", "delay_frames"),
         "delay_confidence": value("sync", "delay_confidence"),
+        "delay_set_aside": {
+            f"cam{camera}": value("sync", f"frames_set_aside_cam{camera}") for camera in CAMERAS
+        },
         "rotation": value("pose", "rotation"),
         "translation": value("pose", "translation"),
         "residuals": value("pose", "residuals") or {},

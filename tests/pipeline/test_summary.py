@@ -24,6 +24,8 @@ def test_summary_gathers_counts_calibration_tracking_warnings_and_timings() -> N
                 "delay_confidence": 0.9,
                 "n_flashes_cam1": 50,
                 "n_flashes_cam2": 45,
+                "frames_set_aside_cam1": 12,
+                "frames_set_aside_cam2": 13,
             },
             ["low confidence"],
         ),
@@ -60,6 +62,7 @@ def test_summary_gathers_counts_calibration_tracking_warnings_and_timings() -> N
         "trajectories": 3,
     }
     assert (summary["delay_frames"], summary["delay_confidence"]) == (-4, 0.9)
+    assert summary["delay_set_aside"] == {"cam1": 12, "cam2": 13}
     assert summary["translation"] == [0, 1, 0] and summary["residuals"] == {"median_deg": 0.01}
     assert summary["tracking"] == {"cam1": tracking}
     assert summary["acceptance"]["cam1"] == {"accepted": 52, "accepted_stereo": 4}

@@ -61,6 +61,7 @@ const FIELDS = [
   ["counts.calibration_inliers", "Calibration pairs that fit the pose"],
   ["delay_frames", "Camera 2 delay", "frames"],
   ["delay_confidence", "Delay confidence", "%", 100],
+  ["delay_set_aside.cam{c}", "Frames the delay search set aside (light pollution, key frames), camera {c}"],
   ["translation", "Direction of camera 2 from camera 1 (unit vector)"],
   ["rotation", "Rotation of camera 2 (matrix)"],
   ["residuals.median_deg", "Calibration residual, median", "°"],

@@ -134,6 +134,9 @@ def check_job_page(page: Page, team: str, reference: Path) -> None:
     )
     label, value = shown("delay_confidence")
     assert label == "Delay confidence" and value.endswith(" %")
+    label, value = shown("delay_set_aside.cam1")
+    assert label.startswith("Frames the delay search set aside")
+    assert value == str(summary["delay_set_aside"]["cam1"]) and int(value) > 0
     plots = page.locator("#plots img")
     assert plots.count() >= 3
     for i in range(plots.count()):
