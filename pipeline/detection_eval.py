@@ -14,6 +14,10 @@ truth (`pipeline.simulate.GroundTruth`), with the matching and tolerances of
   its camera-1 frame lies within `evaluate.IDENTITY_TOLERANCE` (5 %) of its range
   (also reported at `evaluate.RANGE_TOLERANCE`, 2 %: the project's accuracy target);
   a point is *true* when within 5 % of the range of the nearest true flash of its frame.
+  The stereo pairing is scored apart (`pair_figures`): a point is a *true pair* when
+  its two detections (``work/points.npz`` ``index1``/``index2``) are of one true
+  flash-frame, whatever its range error, and a flash-frame is *found paired* when it
+  has such a point; the gap between the two says what is range resolution.
 
 Bins: peak SNR = drawn peak amplitude over the noise σ at the flash's pixel (truth
 columns ``snr1``/``snr2``; 3D uses the smaller of the two), the SNR at a matched
@@ -50,7 +54,7 @@ from pipeline.evaluate import (
     match_detections,
     match_points,
 )
-from pipeline.results import read_trajectories
+from pipeline.results import load_points, read_trajectories
 from pipeline.simulate import GroundTruth
 from pipeline.triangulate import sure_of_range
 
@@ -257,13 +261,47 @@ def stereo_figures(
 # -- 3D -----------------------------------------------------------------------------------
 
 
+def pair_rows(
+    index1: NDArray[np.int64],
+    index2: NDArray[np.int64],
+    detections1: Detections,
+    detections2: Detections,
+    truth: GroundTruth,
+) -> NDArray[np.int64]:
+    """Per triangulated point, the true flash-frame its two detections are both of.
+
+    Parameters
+    ----------
+    index1, index2 : ndarray of int64
+        Rows of ``detections1`` and ``detections2`` (the accepted detections,
+        ``flashes_cam*.csv``) each point was triangulated from (``work/points.npz``).
+    detections1, detections2 : Detections
+    truth : GroundTruth
+
+    Returns
+    -------
+    ndarray of int64
+        Row of ``truth.flashes`` where both detections match that same flash-frame
+        (`evaluate.match_detections`), -1 where either is false or they are of two
+        different flash-frames (a mispairing).
+    """
+    row1 = match_detections(detections1, truth, 1).flash_row[index1]
+    row2 = match_detections(detections2, truth, 2).flash_row[index2]
+    return np.where((row1 >= 0) & (row1 == row2), row1, -1)
+
+
 def point_figures(
-    xyz: NDArray, frame: NDArray, truth: GroundTruth, range_sd: NDArray | None = None
+    xyz: NDArray,
+    frame: NDArray,
+    truth: GroundTruth,
+    range_sd: NDArray | None = None,
+    pair_row: NDArray[np.int64] | None = None,
 ) -> dict[str, Any]:
     """3D recall (within 5 % and 2 % of range), precision, and recall per range bin
     (from camera 1) and per bin of the smaller of the two cameras' peak SNR; with the
     points' `range_sd` (metres), how well it describes their range errors
-    (`uncertainty_figures`)."""
+    (`uncertainty_figures`); with each point's `pair_rows`, the same figures for the
+    *pairing* whatever the range error (`pair_figures`)."""
     match = match_points(xyz, frame, truth)
     found = match.found(IDENTITY_TOLERANCE)
     found2 = match.found(RANGE_TOLERANCE)
@@ -271,18 +309,46 @@ def point_figures(
     rows = match.truth_rows
     snr = np.fmin(flashes.snr1[rows], flashes.snr2[rows])
     flags = [("found", found), ("found_within_2pct", found2)]
+    paired: dict[str, Any] = {}
+    if pair_row is not None:
+        found_paired = np.isin(rows, pair_row)
+        flags.append(("found_paired", found_paired))
+        paired = pair_figures(pair_row, found_paired)
+    return (
+        {
+            "n_truth": len(rows),
+            "n_found": int(found.sum()),
+            "recall": ratio(found.sum(), len(rows)),
+            "n_found_within_2pct": int(found2.sum()),
+            "recall_within_2pct": ratio(found2.sum(), len(rows)),
+            "n_points": len(frame),
+            "n_true": int(match.point_is_true.sum()),
+            "precision": ratio(match.point_is_true.sum(), len(frame)),
+            "by_range_m": binned(match.true_range, flags, RANGE_EDGES_M),
+            "by_snr": binned(snr, flags, SNR_EDGES),
+        }
+        | uncertainty_figures(xyz, range_sd, match)
+        | paired
+    )
+
+
+def pair_figures(pair_row: NDArray[np.int64], found_paired: NDArray[np.bool_]) -> dict[str, Any]:
+    """Stereo pairing scored apart from range accuracy.
+
+    * ``n_pair_true`` of the ``n_pair_points`` points were triangulated from two
+      detections of one true flash-frame (``pair_precision``), whatever their range
+      error: what is left of ``1 - precision`` is range resolution, not false flashes;
+    * ``n_found_paired`` of the ``n_truth`` flash-frames seen by both cameras have such
+      a point (``pair_recall``): what 3D recall would be if every range were exact.
+    """
+    n_pair_true = int(np.count_nonzero(pair_row >= 0))
     return {
-        "n_truth": len(rows),
-        "n_found": int(found.sum()),
-        "recall": ratio(found.sum(), len(rows)),
-        "n_found_within_2pct": int(found2.sum()),
-        "recall_within_2pct": ratio(found2.sum(), len(rows)),
-        "n_points": len(frame),
-        "n_true": int(match.point_is_true.sum()),
-        "precision": ratio(match.point_is_true.sum(), len(frame)),
-        "by_range_m": binned(match.true_range, flags, RANGE_EDGES_M),
-        "by_snr": binned(snr, flags, SNR_EDGES),
-    } | uncertainty_figures(xyz, range_sd, match)
+        "n_pair_points": len(pair_row),
+        "n_pair_true": n_pair_true,
+        "pair_precision": ratio(n_pair_true, len(pair_row)),
+        "n_found_paired": int(found_paired.sum()),
+        "pair_recall": ratio(found_paired.sum(), len(found_paired)),
+    }
 
 
 def uncertainty_figures(
@@ -348,8 +414,23 @@ def score_run(results: Path, truth: GroundTruth) -> dict[str, Any]:
         table = read_trajectories(trajectories)
         xyz = np.column_stack([table["x"], table["y"], table["z"]])
         sd = table.get("range_sd_m")
-        points = point_figures(xyz, np.asarray(table["frame"]), truth, sd)
+        pairs = _pair_rows_of_run(results, loaded["accepted"], truth, len(xyz))
+        points = point_figures(xyz, np.asarray(table["frame"]), truth, sd, pairs)
     return {"cameras": cameras, "stereo": stereo, "points_3d": points}
+
+
+def _pair_rows_of_run(
+    results: Path, accepted: dict[int, Detections], truth: GroundTruth, n_points: int
+) -> NDArray[np.int64] | None:
+    """`pair_rows` of a run's points (``work/points.npz``, one row per line of
+    ``trajectories.csv``, same order); None without them or both cameras' detections."""
+    path = results / artifacts.POINTS_NPZ
+    if len(accepted) < 2 or not path.is_file():
+        return None
+    points = load_points(path)
+    if len(points) != n_points:  # another run's points: nothing to say about these
+        return None
+    return pair_rows(points.index1, points.index2, accepted[1], accepted[2], truth)
 
 
 # -- pooling -------------------------------------------------------------------------------
@@ -363,6 +444,8 @@ _RATIOS = {
     "per_frame": ("n_detections", "n_frames"),
     "coverage": ("n_covered", "n_matched"),
     "precision_sure": ("n_sure_true", "n_sure"),
+    "pair_precision": ("n_pair_true", "n_pair_points"),
+    "pair_recall": ("n_found_paired", "n_truth"),
 }
 
 
@@ -470,19 +553,20 @@ def format_table(rows: list[Row]) -> str:
 
     Columns: 2D recall of the accepted detections (all, at peak SNR ≥ 5, and at
     matched-filter SNR ≥ 5), the candidates' recall at SNR ≥ 5 (before acceptance),
-    accepted precision, candidates
-    per frame, the share of flash-frames seen by both cameras that both detected
-    (``2cam``: 3D recall with a perfect calibration), 3D recall (5 % of range; 2 % in
-    brackets) and precision (of all points, and of those whose range is sure within
-    `SURE_RELATIVE_SD`, with the share of points they are), the coverage of the range
-    errors by twice the points' standard deviations, 3D recall per range bin, the run's delay error
-    (frames) and rotation error (degrees), which explain a collapsed 3D recall.
+    accepted precision, candidates per frame, the share of flash-frames seen by both
+    cameras that both detected (``2cam``: 3D recall with a perfect calibration), 3D
+    recall (5 % of range; 2 % in brackets) and precision, the recall and precision of
+    the stereo pairing whatever the range error (``pair``, `pair_figures`), the
+    precision of the points whose range is sure within `SURE_RELATIVE_SD` with the share
+    of points they are, the coverage of the range errors by twice the points' standard
+    deviations, 3D recall per range bin, the run's delay error (frames) and rotation
+    error (degrees), which explain a collapsed 3D recall.
     """
     header = (
         f"{'night':<24} {'recall c1/c2':>12} {'SNR>=5 c1/c2':>12} {'mf>=5 c1/c2':>11} "
         f"{'cand>=5 c1/c2':>13} "
         f"{'prec c1/c2':>10} {'cand/frame':>10} {'2cam':>4} {'3D rec':>6} {'(2%)':>6} "
-        f"{'3D prec':>7} {'sure: prec share':>16} {'cov':>4} "
+        f"{'3D prec':>7} {'pair rec/prec':>13} {'sure: prec share':>16} {'cov':>4} "
         f"{'dk':>3} {'rot':>5}  3D recall by range 0-5/5-8/8-20/>=20 m"
     )
     lines = [header, "-" * len(header)]
@@ -503,12 +587,20 @@ def format_table(rows: list[Row]) -> str:
             f"{_f(stereo and stereo['recall']):>4} "
             f"{_f(points and points['recall']):>6} "
             f"({_f(points and points['recall_within_2pct'])}) "
-            f"{_f(points and points['precision']):>7} {_sure(points):>16} "
+            f"{_f(points and points['precision']):>7} {_pairing(points):>13} "
+            f"{_sure(points):>16} "
             f"{_f(points and points.get('coverage')):>4} "
             f"{'-' if delay is None else delay:>3} {_f(rotation, 1):>5}  "
             f"{_range_recall(points)}"
         )
     return "\n".join(lines)
+
+
+def _pairing(points: dict[str, Any] | None) -> str:
+    """Recall and precision of the stereo pairing, whatever the range error."""
+    if not points or points.get("n_pair_points") is None:
+        return "-"
+    return f"{_f(points['pair_recall'])}/{_f(points['pair_precision'])}"
 
 
 def _sure(points: dict[str, Any] | None) -> str:
@@ -544,8 +636,11 @@ def format_bins(name: str, entry: dict[str, Any]) -> str:
         lines.append("  both cameras by range m  " + "   ".join(cells))
     points = entry.get("points_3d")
     if points is not None:
-        cells = [f"{b['label']}: {_f(b['found_rate'])} (n={b['n']})" for b in points["by_snr"]]
-        lines.append("  3D by min peak SNR  " + "   ".join(cells))
+        cells = [
+            f"{b['label']}: {_f(b['found_rate'])} | {_f(b.get('found_paired_rate'))} (n={b['n']})"
+            for b in points["by_snr"]
+        ]
+        lines.append("  3D by min peak SNR (within 5 % | paired)  " + "   ".join(cells))
     for cam in ("cam1", "cam2"):
         acc = entry["cameras"][cam]["accepted"]
         if acc is not None:

@@ -191,6 +191,9 @@ class DetectionMatch:
     error : ndarray
         Per truth row, the distance (equatorial pixels) to the nearest detection of its
         frame (inf where there is none): the position error where ``found``.
+    flash_row : ndarray of int64
+        Per detection, the row of ``truth.flashes`` it is a detection of (the nearest
+        visible true flash of its frame), -1 where it is not ``true_detection``.
     """
 
     truth_rows: np.ndarray
@@ -198,6 +201,7 @@ class DetectionMatch:
     true_detection: np.ndarray
     distance: np.ndarray
     error: np.ndarray
+    flash_row: np.ndarray
 
     @property
     def recall(self) -> float:
@@ -227,13 +231,17 @@ def match_detections(detections: Detections, truth: GroundTruth, camera: int) ->
     true_pts = camera_points(u[rows], v[rows], truth.width)
     det_pts = camera_points(detections.x, detections.y, truth.width)
     gap_truth, _ = _nearest_same_frame(det_pts, detections.frame, true_pts, frame[rows])
-    gap_det, _ = _nearest_same_frame(true_pts, frame[rows], det_pts, detections.frame)
+    gap_det, nearest = _nearest_same_frame(true_pts, frame[rows], det_pts, detections.frame)
+    true_detection = gap_det <= DETECTION_TOLERANCE_PX
+    flash_row = np.full(len(detections), -1, dtype=np.int64)
+    flash_row[true_detection] = rows[nearest[true_detection]]
     return DetectionMatch(
         truth_rows=rows,
         found=gap_truth <= DETECTION_TOLERANCE_PX,
-        true_detection=gap_det <= DETECTION_TOLERANCE_PX,
+        true_detection=true_detection,
         distance=gap_det,
         error=gap_truth,
+        flash_row=flash_row,
     )
 
 

@@ -17,6 +17,7 @@ from pipeline.detection_eval import (
     binned,
     detection_figures,
     finite,
+    pair_rows,
     point_figures,
     pool,
     stereo_figures,
@@ -194,10 +195,44 @@ def test_range_standard_deviations_are_scored_by_coverage_and_sure_precision() -
     assert figures["precision_sure"] == 1.0
     wider = point_figures(xyz, np.array([0, 0, 2]), truth, np.array([0.1, 0.03, 3.0]))
     assert wider["n_covered"] == 3 and wider["n_sure"] == 1
-    no_cameras = {cam: {"accepted": None, "candidates": None} for cam in ("cam1", "cam2")}
-    pooled = pool([{"cameras": no_cameras, "points_3d": f} for f in (figures, wider)])
+    pooled = pool([{"cameras": _no_cameras(), "points_3d": f} for f in (figures, wider)])
     assert pooled["points_3d"]["coverage"] == pytest.approx(5 / 6)
     assert pooled["points_3d"]["precision_sure"] == 1.0
+
+
+def test_stereo_pairing_is_scored_apart_from_range_error() -> None:
+    truth = hand_truth()
+    cam2 = Detections.from_columns(
+        frame=[0, 0, 2, 3], x=[101.0, 301.0, 0.5, 51.0], y=[160.0, 150.0, 160.0, 100.0]
+    )
+    # Points from: row 0 in both (right pair), row 1 only in camera 2 (camera 1's
+    # detection is 3 px off: false), rows 0 and 1 crossed (mispaired), row 3 in both
+    # across the seam (right pair), camera 1's false detection with row 4 of camera 2.
+    index1 = np.array([0, 1, 0, 3, 5])
+    index2 = np.array([0, 1, 1, 2, 3])
+    rows = pair_rows(index1, index2, hand_detections(), cam2, truth)
+    assert rows.tolist() == [0, -1, -1, 3, -1]
+    # The right pair of row 0 triangulated 20 % off in range still counts as paired.
+    xyz = np.array([[3.6, 0, 0], [0, 6.0, 0], [3.0, 0, 0], [25.0, 0, 0], [0, 4.0, 0]])
+    frame = np.array([0, 0, 0, 2, 3])
+    figures = point_figures(xyz, frame, truth, pair_row=rows)
+    assert figures["n_pair_points"] == 5 and figures["n_pair_true"] == 2
+    assert figures["pair_precision"] == pytest.approx(2 / 5)
+    assert figures["n_truth"] == 4 and figures["n_found_paired"] == 2
+    assert figures["pair_recall"] == 0.5
+    # Within 5 %: rows 1 (a false pair that lands on it), 0 (the mispaired point) and 3.
+    assert figures["n_found"] == 3
+    snr = by_label(figures["by_snr"])  # rows 0 (2 σ) and 3 (30 σ) are paired
+    assert snr["0-3"]["found_paired"] == 1 and snr[">=20"]["found_paired"] == 1
+    assert snr["3-5"]["found_paired"] == 0
+    assert "pair_recall" not in point_figures(xyz, frame, truth)
+    pooled = pool([{"cameras": _no_cameras(), "points_3d": figures}] * 2)
+    assert pooled["points_3d"]["pair_precision"] == pytest.approx(2 / 5)
+    assert pooled["points_3d"]["pair_recall"] == 0.5
+
+
+def _no_cameras() -> dict[str, dict[str, None]]:
+    return {cam: {"accepted": None, "candidates": None} for cam in ("cam1", "cam2")}
 
 
 def test_pool_adds_counts_and_recomputes_ratios() -> None:
@@ -275,6 +310,11 @@ def test_eval_detection_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture
     stereo = run["stereo"]["accepted"]
     assert stereo["n_truth"] == points["n_truth"] and stereo["recall"] > 0.9
     assert points["recall"] <= stereo["recall"] + 0.02  # triangulation needs both cameras
+    # Pairing, whatever the range error: every point is scored, nearly all pairs are
+    # right, and a paired flash-frame was necessarily detected by both cameras.
+    assert points["n_pair_points"] == points["n_points"] and points["pair_precision"] > 0.95
+    assert points["recall"] - 0.02 <= points["pair_recall"] <= stereo["recall"]
+    assert "pair rec/prec" in table
     assert run["accuracy"]["delay_error_frames"] == 0
     assert document["pooled"]["clean"]["n_runs"] == 1
 
