@@ -49,6 +49,7 @@ from pipeline.evaluate import (
     DETECTION_TOLERANCE_PX,
     IDENTITY_TOLERANCE,
     RANGE_TOLERANCE,
+    DetectionMatch,
     PointMatch,
     camera_points,
     match_detections,
@@ -187,11 +188,11 @@ def false_positive_kinds(
 
 
 def detection_figures(
-    detections: Detections, truth: GroundTruth, camera: int, n_frames: int
+    detections: Detections, match: DetectionMatch, truth: GroundTruth, camera: int, n_frames: int
 ) -> dict[str, Any]:
     """Recall (overall, at SNR ≥ `HEADLINE_SNR`, per SNR and range bin), precision,
-    rates per frame and false positives by kind for one camera's detections."""
-    match = match_detections(detections, truth, camera)
+    rates per frame and false positives by kind for one camera's detections and their
+    `match_detections`."""
     flashes = truth.flashes
     snr = flashes.camera_column("snr", camera)[match.truth_rows]
     distance = flashes.camera_column("range", camera)[match.truth_rows]
@@ -232,16 +233,16 @@ def detection_figures(
 
 
 def stereo_figures(
-    detections1: Detections, detections2: Detections, truth: GroundTruth
+    match1: DetectionMatch, match2: DetectionMatch, truth: GroundTruth
 ) -> dict[str, Any]:
-    """Flash-frames seen by both cameras that were detected in both (each camera's 2D
-    match): what triangulation could reconstruct with a perfect calibration, an upper
-    bound on 3D recall that does not depend on the delay and pose estimates."""
+    """Flash-frames seen by both cameras that were detected in both (each camera's
+    `match_detections`): what triangulation could reconstruct with a perfect
+    calibration, an upper bound on 3D recall that does not depend on the delay and pose
+    estimates."""
     flashes = truth.flashes
     found = np.zeros((2, len(flashes)), dtype=bool)
-    for camera, detections in ((1, detections1), (2, detections2)):
-        match = match_detections(detections, truth, camera)
-        found[camera - 1, match.truth_rows[match.found]] = True
+    for camera, match in enumerate((match1, match2)):
+        found[camera, match.truth_rows[match.found]] = True
     rows = np.flatnonzero(flashes.visible1 & flashes.visible2)
     both = found[0, rows] & found[1, rows]
     snr = np.fmin(flashes.snr1[rows], flashes.snr2[rows])
@@ -264,29 +265,28 @@ def stereo_figures(
 def pair_rows(
     index1: NDArray[np.int64],
     index2: NDArray[np.int64],
-    detections1: Detections,
-    detections2: Detections,
-    truth: GroundTruth,
+    match1: DetectionMatch,
+    match2: DetectionMatch,
 ) -> NDArray[np.int64]:
     """Per triangulated point, the true flash-frame its two detections are both of.
 
     Parameters
     ----------
     index1, index2 : ndarray of int64
-        Rows of ``detections1`` and ``detections2`` (the accepted detections,
-        ``flashes_cam*.csv``) each point was triangulated from (``work/points.npz``).
-    detections1, detections2 : Detections
-    truth : GroundTruth
+        Rows of each camera's accepted detections (``flashes_cam*.csv``) each point was
+        triangulated from (``work/points.npz``).
+    match1, match2 : DetectionMatch
+        `evaluate.match_detections` of those detections.
 
     Returns
     -------
     ndarray of int64
-        Row of ``truth.flashes`` where both detections match that same flash-frame
-        (`evaluate.match_detections`), -1 where either is false or they are of two
-        different flash-frames (a mispairing).
+        Row of ``truth.flashes`` where both detections match that same flash-frame,
+        -1 where either is false or they are of two different flash-frames (a
+        mispairing).
     """
-    row1 = match_detections(detections1, truth, 1).flash_row[index1]
-    row2 = match_detections(detections2, truth, 2).flash_row[index2]
+    row1 = match1.flash_row[index1]
+    row2 = match2.flash_row[index2]
     return np.where((row1 >= 0) & (row1 == row2), row1, -1)
 
 
@@ -396,17 +396,22 @@ def score_run(results: Path, truth: GroundTruth) -> dict[str, Any]:
         candidates = results / artifacts.candidates_name(camera)
         if candidates.is_file():
             loaded["candidates"][camera] = Detections.from_npz(candidates)
+    # Each camera's detections matched once, for its figures, the stereo ones and pairing.
+    matches = {
+        kind: {camera: match_detections(d, truth, camera) for camera, d in found.items()}
+        for kind, found in loaded.items()
+    }
     for camera in artifacts.CAMERAS:
         n_frames = truth.n_frames1 if camera == 1 else truth.n_frames2
         cameras[f"cam{camera}"] = {
-            kind: detection_figures(found[camera], truth, camera, n_frames)
+            kind: detection_figures(found[camera], matches[kind][camera], truth, camera, n_frames)
             if camera in found
             else None
             for kind, found in loaded.items()
         }
     stereo = {
-        kind: stereo_figures(found[1], found[2], truth) if len(found) == 2 else None
-        for kind, found in loaded.items()
+        kind: stereo_figures(match[1], match[2], truth) if len(match) == 2 else None
+        for kind, match in matches.items()
     }
     points = None
     trajectories = results / artifacts.TRAJECTORIES_CSV
@@ -414,13 +419,13 @@ def score_run(results: Path, truth: GroundTruth) -> dict[str, Any]:
         table = read_trajectories(trajectories)
         xyz = np.column_stack([table["x"], table["y"], table["z"]])
         sd = table.get("range_sd_m")
-        pairs = _pair_rows_of_run(results, loaded["accepted"], truth, len(xyz))
+        pairs = _pair_rows_of_run(results, matches["accepted"], len(xyz))
         points = point_figures(xyz, np.asarray(table["frame"]), truth, sd, pairs)
     return {"cameras": cameras, "stereo": stereo, "points_3d": points}
 
 
 def _pair_rows_of_run(
-    results: Path, accepted: dict[int, Detections], truth: GroundTruth, n_points: int
+    results: Path, accepted: dict[int, DetectionMatch], n_points: int
 ) -> NDArray[np.int64] | None:
     """`pair_rows` of a run's points (``work/points.npz``, one row per line of
     ``trajectories.csv``, same order); None without them or both cameras' detections."""
@@ -430,7 +435,7 @@ def _pair_rows_of_run(
     points = load_points(path)
     if len(points) != n_points:  # another run's points: nothing to say about these
         return None
-    return pair_rows(points.index1, points.index2, accepted[1], accepted[2], truth)
+    return pair_rows(points.index1, points.index2, accepted[1], accepted[2])
 
 
 # -- pooling -------------------------------------------------------------------------------

@@ -30,6 +30,7 @@ from pipeline.detection_eval_cli import (
     simulation_configs,
 )
 from pipeline.detections import Detections
+from pipeline.evaluate import match_detections
 from pipeline.geometry import Pose
 from pipeline.simulate import ArtifactTruth, FlashTruth, GroundTruth
 
@@ -116,7 +117,8 @@ def test_binned_counts_hits_per_bin_and_unknowns() -> None:
 
 def test_detection_figures_on_hand_made_truth() -> None:
     truth = hand_truth()
-    figures = detection_figures(hand_detections(), truth, camera=1, n_frames=4)
+    det = hand_detections()
+    figures = detection_figures(det, match_detections(det, truth, 1), truth, 1, n_frames=4)
     assert figures["n_truth"] == 4  # the hidden row does not count
     assert figures["n_found"] == 3 and figures["recall"] == 0.75  # row 1 missed (3 px off)
     assert figures["n_truth_snr_ge5"] == 2 and figures["recall_snr_ge5"] == 1.0
@@ -145,14 +147,16 @@ def test_stereo_figures_count_flashes_detected_by_both_cameras() -> None:
     cam2 = Detections.from_columns(
         frame=[0, 1, 2, 3], x=[101.0, 101.5, 0.5, 51.0], y=[160.0, 160.0, 160.0, 100.0]
     )
-    figures = stereo_figures(hand_detections(), cam2, truth)
+    match1 = match_detections(hand_detections(), truth, 1)
+    figures = stereo_figures(match1, match_detections(cam2, truth, 2), truth)
     # Rows 0-3 are seen by both cameras; row 1 is found by neither, row 4 by camera 2 only.
     assert figures["n_truth"] == 4 and figures["n_found"] == 3 and figures["recall"] == 0.75
     assert figures["n_truth_snr_ge5"] == 2 and figures["recall_snr_ge5"] == 1.0
     rng = by_label(figures["by_range_m"])
     assert [rng[k]["found"] for k in rng] == [1, 0, 1, 1]
     # Nothing detected by camera 2: nothing for triangulation.
-    assert stereo_figures(hand_detections(), cam2.select(np.zeros(0, int)), truth)["n_found"] == 0
+    none = match_detections(cam2.select(np.zeros(0, int)), truth, 2)
+    assert stereo_figures(match1, none, truth)["n_found"] == 0
 
 
 def test_finite_makes_strict_json() -> None:
@@ -210,7 +214,8 @@ def test_stereo_pairing_is_scored_apart_from_range_error() -> None:
     # across the seam (right pair), camera 1's false detection with row 4 of camera 2.
     index1 = np.array([0, 1, 0, 3, 5])
     index2 = np.array([0, 1, 1, 2, 3])
-    rows = pair_rows(index1, index2, hand_detections(), cam2, truth)
+    match1 = match_detections(hand_detections(), truth, 1)
+    rows = pair_rows(index1, index2, match1, match_detections(cam2, truth, 2))
     assert rows.tolist() == [0, -1, -1, 3, -1]
     # The right pair of row 0 triangulated 20 % off in range still counts as paired.
     xyz = np.array([[3.6, 0, 0], [0, 6.0, 0], [3.0, 0, 0], [25.0, 0, 0], [0, 4.0, 0]])
@@ -238,19 +243,23 @@ def _no_cameras() -> dict[str, dict[str, None]]:
 def test_pool_adds_counts_and_recomputes_ratios() -> None:
     truth = hand_truth()
     det = hand_detections()
+    match = match_detections(det, truth, 1)
     run = {
         "seed": 1,
         "cameras": {
             cam: {
-                "accepted": detection_figures(det, truth, 1, 4),
-                "candidates": detection_figures(det, truth, 1, 4),
+                "accepted": detection_figures(det, match, truth, 1, 4),
+                "candidates": detection_figures(det, match, truth, 1, 4),
             }
             for cam in ("cam1", "cam2")
         },
         "points_3d": point_figures(np.array([[3.1, 0, 0]]), np.array([0]), truth),
     }
     other = json.loads(json.dumps(run)) | {"seed": 2}
-    other["cameras"]["cam1"]["accepted"] = detection_figures(det.select(np.arange(1)), truth, 1, 4)
+    first = det.select(np.arange(1))
+    other["cameras"]["cam1"]["accepted"] = detection_figures(
+        first, match_detections(first, truth, 1), truth, 1, 4
+    )
     pooled = pool([run, other])
     acc = pooled["cameras"]["cam1"]["accepted"]
     assert pooled["n_runs"] == 2 and pooled["seeds"] == [1, 2]
