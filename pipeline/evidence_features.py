@@ -3,7 +3,9 @@
 Every candidate of a camera gets one row of `FEATURES`, from its own camera and, once
 the delay and the pose are known, from the other one:
 
-* its own patch and spot: SNR, the classifier's probability, its peak foreground;
+* its own patch and spot: SNR, the classifier's probability, its peak foreground and
+  the noise at the spot (peak over SNR: a sky seen through swaying leaves is noisier
+  than the dark, and trees do not take the difference of two columns themselves);
 * its light curve (`pipeline.acceptance.spot_chains`): how long the spot stays lit
   (faint peaks counted), how long it is a candidate, how many candidates the chain
   holds, the chain's best SNR and probability;
@@ -55,6 +57,7 @@ _OWN: tuple[str, ...] = (
     "recurrence",
     "flicker_duty",
     "spot_revisits",
+    "noise_log",
     *_VERDICTS,
 )
 #: Own columns of the matched candidate of the other camera, read as ``other_<name>``.
@@ -188,11 +191,13 @@ def _own_features(
     verdicts = np.eye(len(Verdict))[ev.verdict]
     revisits = _spot_revisits(det, ev.chain, width, fps)
     with np.errstate(divide="ignore", invalid="ignore"):
+        snr_log = np.log(snr)
+        peak_log = np.log(np.maximum(det.peak.astype(np.float64), 0.1))
         return np.column_stack(
             [
-                np.log(snr),
+                snr_log,
                 probability,
-                np.log(np.maximum(det.peak.astype(np.float64), 0.1)),
+                peak_log,
                 ev.lit_frames / fps,
                 candidate_lit / fps,
                 chain_size[ev.chain] / fps,
@@ -202,6 +207,7 @@ def _own_features(
                 det.recurrence.astype(np.float64),
                 duty,
                 revisits[ev.chain],
+                peak_log - snr_log,
                 verdicts,
             ]
         )

@@ -49,7 +49,7 @@ class EvidenceModel:
     Attributes
     ----------
     trees : TreeEnsemble
-        The classifier over `FEATURES` rows.
+        The classifier over rows of `features`.
     threshold : float
         Flash probability from which a candidate is accepted.
     classifier : str
@@ -57,12 +57,16 @@ class EvidenceModel:
     card : dict
         Everything else the file says (training nights, figures; ``matched_sigma_px``:
         the tracking filter its candidates came from, when the card says).
+    features : tuple of str
+        The `FEATURES` it reads, in its trees' column order: a release may compute more
+        than a model was trained on, so a new kind of evidence does not retire a model.
     """
 
     trees: TreeEnsemble
     threshold: float
     classifier: str
     card: dict[str, Any]
+    features: tuple[str, ...] = FEATURES
 
     @property
     def matched_sigma_px(self) -> float | None:
@@ -72,27 +76,34 @@ class EvidenceModel:
 
     @classmethod
     def load(cls, path: str | Path) -> Self:
-        """Read a model file (`to_json`); its features must be `FEATURES`."""
+        """Read a model file (`to_json`); it must read only features of `FEATURES`."""
         data = json.loads(Path(path).read_text(encoding="utf-8"))
         features = tuple(data.get("features", ()))
-        if features != FEATURES:
+        unknown = [name for name in features if name not in FEATURES]
+        trees = TreeEnsemble.from_dict(data["trees"])
+        if unknown or not features or trees.n_features != len(features):
             raise ValueError(
-                f"{path}: the evidence model reads features {list(features)}, this release "
-                f"computes {list(FEATURES)}"
+                f"{path}: the evidence model reads features {list(features)} over "
+                f"{trees.n_features} columns; this release computes {list(FEATURES)}"
             )
-        card = {k: v for k, v in data.items() if k not in ("trees", "threshold", "classifier")}
+        card = {
+            k: v
+            for k, v in data.items()
+            if k not in ("trees", "threshold", "classifier", "features")
+        }
         return cls(
-            trees=TreeEnsemble.from_dict(data["trees"]),
+            trees=trees,
             threshold=float(data["threshold"]),
             classifier=str(data["classifier"]),
             card=card,
+            features=features,
         )
 
     def to_json(self, path: str | Path) -> None:
         """Write the card readably, the trees' node arrays compactly, in one JSON file."""
         card = {
             **self.card,
-            "features": list(FEATURES),
+            "features": list(self.features),
             "threshold": self.threshold,
             "classifier": self.classifier,
         }
@@ -101,9 +112,10 @@ class EvidenceModel:
         text = f'{head[:-2]},\n "trees": {trees}\n}}\n'
         Path(path).write_text(text, encoding="utf-8")
 
-    def probability(self, features: NDArray[np.floating]) -> NDArray[np.float64]:
-        """Flash probability of each row of `FEATURES`."""
-        return self.trees.predict_proba(features)
+    def probability(self, rows: NDArray[np.floating]) -> NDArray[np.float64]:
+        """Flash probability of each row of `FEATURES` (the model reads its own columns)."""
+        columns = [FEATURES.index(name) for name in self.features]
+        return self.trees.predict_proba(rows[:, columns])
 
 
 def evidence_model(

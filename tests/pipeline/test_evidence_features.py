@@ -92,6 +92,10 @@ def test_own_evidence_columns_describe_the_light_curve() -> None:
     assert verdicts.sum(axis=1).tolist() == [1] * 5 and np.all(verdicts[:, 1] == 1)
     assert np.all(np.isnan(_col(rows1, "recurrence")))  # not measured here
     assert np.all(_col(rows1, "flicker_duty") > 0)
+    # The noise at the spot: peak 40 grey levels over its SNR.
+    np.testing.assert_allclose(
+        np.exp(_col(rows1, "noise_log")), 40.0 / np.exp(_col(rows1, "snr_log"))
+    )
 
 
 def test_the_flicker_duty_the_merge_stage_measured_is_the_one_read() -> None:

@@ -33,19 +33,43 @@ POSE = Pose(np.eye(3), [1.0, 0.0, 0.0])
 
 def test_the_shipped_model_reads_this_releases_features() -> None:
     model = EvidenceModel.load(DEFAULT_EVIDENCE_MODEL)
-    assert model.trees.n_features == len(FEATURES)
+    assert set(model.features) <= set(FEATURES)
+    assert model.trees.n_features == len(model.features)
     assert 0 < model.threshold < 1 and model.classifier == DEFAULT_MODEL_NAME
     assert model.card["trained_on"] and model.card["out_of_fold_at_threshold"]
     assert model.trees.depth <= 6
 
 
+def test_a_model_reads_its_own_columns_of_the_features() -> None:
+    model = EvidenceModel.load(DEFAULT_EVIDENCE_MODEL)
+    unread = [name for name in FEATURES if name not in model.features]
+    assert unread == ["noise_log"]  # added after the shipped model was trained
+    rows = np.tile(np.linspace(0.1, 0.9, len(FEATURES)), (3, 1))
+    rows[1, FEATURES.index("noise_log")] = 50.0
+    rows[2, FEATURES.index("snr_log")] = 4.0
+    p = model.probability(rows)
+    assert p[1] == p[0]  # a column it does not read
+    assert p[2] != p[0]  # one it reads
+
+
 def test_a_model_of_other_features_is_refused(tmp_path) -> None:
     data = json.loads(DEFAULT_EVIDENCE_MODEL.read_text())
-    data["features"] = data["features"][:-1]
-    path = tmp_path / "old.json"
-    path.write_text(json.dumps(data))
-    with pytest.raises(ValueError, match="reads features"):
-        EvidenceModel.load(path)
+    unknown = dict(data, features=[*data["features"][:-1], "moon_phase"])
+    fewer = dict(data, features=data["features"][:-1])  # its trees read one more column
+    for name, bad in (("unknown", unknown), ("fewer", fewer)):
+        path = tmp_path / f"{name}.json"
+        path.write_text(json.dumps(bad))
+        with pytest.raises(ValueError, match="reads features"):
+            EvidenceModel.load(path)
+
+
+def test_a_model_written_and_read_back_keeps_its_features(tmp_path) -> None:
+    model = EvidenceModel.load(DEFAULT_EVIDENCE_MODEL)
+    model.to_json(tmp_path / "copy.json")
+    copy = EvidenceModel.load(tmp_path / "copy.json")
+    assert copy.features == model.features and copy.threshold == model.threshold
+    rows = np.random.default_rng(0).normal(size=(20, len(FEATURES)))
+    np.testing.assert_array_equal(copy.probability(rows), model.probability(rows))
 
 
 def test_the_rules_decide_without_the_models_classifier() -> None:
