@@ -68,6 +68,14 @@ class EvidenceModel:
     card: dict[str, Any]
     features: tuple[str, ...] = FEATURES
 
+    def __post_init__(self) -> None:
+        unknown = [name for name in self.features if name not in FEATURES]
+        if unknown or not self.features or self.trees.n_features != len(self.features):
+            raise ValueError(
+                f"the evidence model reads features {list(self.features)} over "
+                f"{self.trees.n_features} columns; this release computes {list(FEATURES)}"
+            )
+
     @property
     def matched_sigma_px(self) -> float | None:
         """`TrackingParams.matched_sigma_px` of the nights it was trained on, if known."""
@@ -78,26 +86,21 @@ class EvidenceModel:
     def load(cls, path: str | Path) -> Self:
         """Read a model file (`to_json`); it must read only features of `FEATURES`."""
         data = json.loads(Path(path).read_text(encoding="utf-8"))
-        features = tuple(data.get("features", ()))
-        unknown = [name for name in features if name not in FEATURES]
-        trees = TreeEnsemble.from_dict(data["trees"])
-        if unknown or not features or trees.n_features != len(features):
-            raise ValueError(
-                f"{path}: the evidence model reads features {list(features)} over "
-                f"{trees.n_features} columns; this release computes {list(FEATURES)}"
-            )
         card = {
             k: v
             for k, v in data.items()
             if k not in ("trees", "threshold", "classifier", "features")
         }
-        return cls(
-            trees=trees,
-            threshold=float(data["threshold"]),
-            classifier=str(data["classifier"]),
-            card=card,
-            features=features,
-        )
+        try:
+            return cls(
+                trees=TreeEnsemble.from_dict(data["trees"]),
+                threshold=float(data["threshold"]),
+                classifier=str(data["classifier"]),
+                card=card,
+                features=tuple(data.get("features", ())),
+            )
+        except ValueError as exc:
+            raise ValueError(f"{path}: {exc}") from None
 
     def to_json(self, path: str | Path) -> None:
         """Write the card readably, the trees' node arrays compactly, in one JSON file."""
