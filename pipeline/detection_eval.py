@@ -385,8 +385,95 @@ def uncertainty_figures(
 # -- a run ---------------------------------------------------------------------------------
 
 
-def score_run(results: Path, truth: GroundTruth) -> dict[str, Any]:
-    """Every figure of one run folder against its truth (what is missing is None)."""
+# -- the acceptance cut ----------------------------------------------------------------------
+
+
+def cut_figures(
+    candidates: Detections,
+    probability: NDArray[np.floating],
+    truth: GroundTruth,
+    camera: int,
+    cuts: Sequence[float],
+) -> list[dict[str, Any]]:
+    """The 2D headline figures of one camera had the evidence model accepted the
+    candidates of flash probability ≥ each cut.
+
+    The trade that ``acceptance.evidence_threshold`` makes, read from one run's
+    per-candidate probabilities (``work/acceptance_cam*.npz``) without running it again:
+    at the run's own cut the figures are those of its accepted detections, since these
+    are the candidates of probability at or above it.
+
+    Parameters
+    ----------
+    candidates : Detections
+        Every candidate of the camera (``work/candidates_cam*.npz``).
+    probability : ndarray, shape (N,)
+        The evidence model's flash probability of each candidate.
+    truth : GroundTruth
+    camera : int
+        1 or 2.
+    cuts : sequence of float
+        Probability cuts, in [0, 1].
+
+    Returns
+    -------
+    list of dict
+        Per cut: ``cut``, the counts and ratio of recall at peak SNR ≥ `HEADLINE_SNR`
+        (``n_truth_snr_ge5``, ``n_found_snr_ge5``, ``recall_snr_ge5``), precision
+        (``n_detections``, ``n_true``, ``precision``) and ``f1_snr_ge5``, the harmonic
+        mean of the two.
+    """
+    snr = truth.flashes.camera_column("snr", camera)
+    out = []
+    for cut in cuts:
+        accepted = candidates.select(np.asarray(probability) >= cut)
+        match = match_detections(accepted, truth, camera)
+        strong = snr[match.truth_rows] >= HEADLINE_SNR
+        n_true = int(match.true_detection.sum())
+        entry = {
+            "cut": float(cut),
+            "n_truth_snr_ge5": int(strong.sum()),
+            "n_found_snr_ge5": int(match.found[strong].sum()),
+            "recall_snr_ge5": ratio(match.found[strong].sum(), strong.sum()),
+            "n_detections": len(accepted),
+            "n_true": n_true,
+            "precision": ratio(n_true, len(accepted)),
+        }
+        out.append(_with_f1(entry))
+    return out
+
+
+def _with_f1(entry: dict[str, Any]) -> dict[str, Any]:
+    recall, precision = entry["recall_snr_ge5"], entry["precision"]
+    f1 = None
+    if recall is not None and precision is not None and recall + precision > 0:
+        f1 = 2 * recall * precision / (recall + precision)
+    return entry | {"f1_snr_ge5": f1}
+
+
+def _cuts_of_run(
+    results: Path, candidates: dict[int, Detections], truth: GroundTruth, cuts: Sequence[float]
+) -> dict[str, list[dict[str, Any]] | None] | None:
+    """`cut_figures` of both cameras of a run folder; a camera is None where the rules
+    decided (no probabilities) or its files are missing."""
+    if not cuts:
+        return None
+    out: dict[str, list[dict[str, Any]] | None] = {}
+    for camera in artifacts.CAMERAS:
+        path = results / artifacts.ACCEPTANCE_NPZ.format(camera=camera)
+        figures = None
+        if camera in candidates and path.is_file():
+            with np.load(path) as saved:
+                probability = saved["probability"]
+            if len(probability) == len(candidates[camera]) and not np.isnan(probability).all():
+                figures = cut_figures(candidates[camera], probability, truth, camera, cuts)
+        out[f"cam{camera}"] = figures
+    return out
+
+
+def score_run(results: Path, truth: GroundTruth, cuts: Sequence[float] = ()) -> dict[str, Any]:
+    """Every figure of one run folder against its truth (what is missing is None);
+    with `cuts`, also `cut_figures` per camera (``cuts``)."""
     cameras: dict[str, Any] = {}
     loaded: dict[str, dict[int, Detections]] = {"accepted": {}, "candidates": {}}
     for camera in artifacts.CAMERAS:
@@ -421,7 +508,12 @@ def score_run(results: Path, truth: GroundTruth) -> dict[str, Any]:
         sd = table.get("range_sd_m")
         pairs = _pair_rows_of_run(results, matches["accepted"], len(xyz))
         points = point_figures(xyz, np.asarray(table["frame"]), truth, sd, pairs)
-    return {"cameras": cameras, "stereo": stereo, "points_3d": points}
+    return {
+        "cameras": cameras,
+        "stereo": stereo,
+        "points_3d": points,
+        "cuts": _cuts_of_run(results, loaded["candidates"], truth, cuts),
+    }
 
 
 def _pair_rows_of_run(
@@ -477,7 +569,7 @@ def _pool_figures(parts: list[dict[str, Any] | None]) -> dict[str, Any] | None:
         if name in present[0] and num in out:
             denominator = den or ("n_detections" if "n_detections" in out else "n_points")
             out[name] = ratio(out[num], out.get(denominator, 0))
-    if "n_detections" in out:
+    if "n_detections" in out and "n_frames" in out:
         out["false_per_frame"] = ratio(out["n_detections"] - out["n_true"], out["n_frames"])
     return out
 
@@ -523,7 +615,29 @@ def pool(runs: Iterable[dict[str, Any]]) -> dict[str, Any]:
         "cameras": cameras,
         "stereo": stereo,
         "points_3d": _pool_figures([r["points_3d"] for r in runs]),
+        "cuts": _pool_cuts([r.get("cuts") for r in runs]),
     }
+
+
+def _pool_cuts(
+    parts: list[dict[str, list[dict[str, Any]] | None] | None],
+) -> dict[str, list[dict[str, Any]] | None] | None:
+    """Pool `cut_figures` cut by cut, over the runs scored at the same cuts."""
+    present = [p for p in parts if p is not None]
+    if not present:
+        return None
+    out: dict[str, list[dict[str, Any]] | None] = {}
+    for cam in ("cam1", "cam2"):
+        runs = [figures for p in present if (figures := p.get(cam))]
+        cuts = {tuple(e["cut"] for e in r) for r in runs}
+        if not runs or len(cuts) != 1:
+            out[cam] = None
+            continue
+        out[cam] = [
+            _with_f1({"cut": entries[0]["cut"], **(_pool_figures(list(entries)) or {})})
+            for entries in zip(*runs, strict=True)
+        ]
+    return out
 
 
 # -- text ----------------------------------------------------------------------------------
@@ -613,6 +727,38 @@ def _sure(points: dict[str, Any] | None) -> str:
     if not points or points.get("n_sure") is None:
         return "-"
     return f"{_f(points['precision_sure'])} {_f(ratio(points['n_sure'], points['n_points']))}"
+
+
+def format_cuts(rows: list[Row]) -> str:
+    """Per run (and pooled scenario), the 2D figures at each evidence-model cut
+    (`cut_figures`): recall at peak SNR ≥ 5, precision and their F1 per camera, and the
+    true and false detections of both cameras."""
+    header = (
+        f"{'night':<24} {'cut':>5} {'SNR>=5 c1/c2':>12} {'prec c1/c2':>10} {'F1 c1/c2':>9} "
+        f"{'true / false':>14}"
+    )
+    lines = ["2D at each evidence-model cut (candidates of flash probability >= cut)", header]
+    lines.append("-" * len(header))
+    for row in rows:
+        cuts = row.entry.get("cuts") or {}
+        cameras = [cuts.get(cam) for cam in ("cam1", "cam2")]
+        present = [c for c in cameras if c]
+        if not present:
+            lines.append(f"{row.name:<24} no evidence-model probabilities (the rules decided)")
+            continue
+        for i, cut in enumerate(e["cut"] for e in present[0]):
+            at = [c[i] if c else None for c in cameras]
+
+            def both(key: str, at: list[dict[str, Any] | None] = at) -> str:
+                return "/".join(_f(None if e is None else e[key]) for e in at)
+
+            true = sum(e["n_true"] for e in at if e)
+            false = sum(e["n_detections"] - e["n_true"] for e in at if e)
+            lines.append(
+                f"{row.name:<24} {cut:>5.3g} {both('recall_snr_ge5'):>12} "
+                f"{both('precision'):>10} {both('f1_snr_ge5'):>9} {f'{true:,} / {false:,}':>14}"
+            )
+    return "\n".join(lines)
 
 
 def format_bins(name: str, entry: dict[str, Any]) -> str:

@@ -17,6 +17,7 @@ import os
 import sys
 import time
 import traceback
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -109,8 +110,25 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     output = parser.add_argument_group("output")
     output.add_argument("--json", type=Path, metavar="FILE", help="write every figure as JSON")
     output.add_argument("--bins", action="store_true", help="also print recall per bin")
+    output.add_argument(
+        "--cuts",
+        type=_probability,
+        nargs="+",
+        default=(),
+        metavar="P",
+        help="also score each run as if the evidence model had accepted the candidates of "
+        "flash probability >= P (from the run's own probabilities, without running it "
+        "again): what acceptance.evidence_threshold trades between recall and precision",
+    )
     output.add_argument("--quiet", action="store_true", help="no progress messages")
     parser.set_defaults(func=_eval_detection)
+
+
+def _probability(text: str) -> float:
+    value = float(text)
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"{text} is not a probability in [0, 1]")
+    return value
 
 
 def _default_cache() -> Path:
@@ -269,8 +287,10 @@ def evaluate_night(
     params: ProcessParams,
     reuse: bool,
     log: Any = None,
+    cuts: Sequence[float] = (),
 ) -> dict[str, Any]:
-    """Run (unless ``results`` is given) and score one recording."""
+    """Run (unless ``results`` is given) and score one recording (at `cuts` too:
+    `pipeline.detection_eval.cut_figures`)."""
     from pipeline.detection_eval import score_run
     from pipeline.evaluate import evaluate_run
 
@@ -288,7 +308,7 @@ def evaluate_night(
         error = run_pipeline(recording, truth, results, params, reuse)
         if log:
             log(f"  done in {time.perf_counter() - start:.1f} s" + (f" ({error})" if error else ""))
-    scores = score_run(results, truth)
+    scores = score_run(results, truth, cuts)
     accuracy = None
     try:
         accuracy = evaluate_run(results, truth).to_dict()
@@ -320,6 +340,7 @@ def _eval_detection(args: argparse.Namespace) -> int:
         bins_description,
         finite,
         format_bins,
+        format_cuts,
         format_table,
         pool,
         tolerances,
@@ -354,7 +375,9 @@ def _eval_detection(args: argparse.Namespace) -> int:
     for recording, results in jobs:
         try:
             runs.append(
-                evaluate_night(recording, results, args.out, params, args.reuse_results, log)
+                evaluate_night(
+                    recording, results, args.out, params, args.reuse_results, log, args.cuts
+                )
             )
         except (FileNotFoundError, ValueError) as exc:
             print(f"error: {recording}: {exc}", file=sys.stderr)
@@ -368,6 +391,9 @@ def _eval_detection(args: argparse.Namespace) -> int:
     rows = [Row(night_name(r), r) for r in runs]
     rows += [Row(f"{name} (pooled)", p) for name, p in pooled.items() if p["n_runs"] > 1]
     print(format_table(rows))
+    if args.cuts:
+        print()
+        print(format_cuts(rows))
     if args.bins:
         for row in rows:
             print()

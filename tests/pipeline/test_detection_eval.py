@@ -15,6 +15,7 @@ from pipeline.cli import main
 from pipeline.detection_eval import (
     SCHEMA_VERSION,
     binned,
+    cut_figures,
     detection_figures,
     finite,
     pair_rows,
@@ -31,6 +32,7 @@ from pipeline.detection_eval_cli import (
 )
 from pipeline.detections import Detections
 from pipeline.evaluate import match_detections
+from pipeline.evidence_model import DEFAULT_EVIDENCE_MODEL, EvidenceModel
 from pipeline.geometry import Pose
 from pipeline.simulate import ArtifactTruth, FlashTruth, GroundTruth
 
@@ -236,6 +238,37 @@ def test_stereo_pairing_is_scored_apart_from_range_error() -> None:
     assert pooled["points_3d"]["pair_recall"] == 0.5
 
 
+def test_cut_figures_score_the_candidates_at_or_above_each_cut() -> None:
+    truth = hand_truth()
+    # Rows 0, 2, 3 are true (flashes of SNR 2, 7 and 30); 1, 4 and 5 are not.
+    probability = np.array([0.9, 0.2, 0.7, 0.95, 0.6, 0.8])
+    every, likely, none = cut_figures(hand_detections(), probability, truth, 1, [0.0, 0.75, 1.0])
+    assert every["cut"] == 0.0 and (every["n_detections"], every["n_true"]) == (6, 3)
+    assert every["n_truth_snr_ge5"] == 2 and every["recall_snr_ge5"] == 1.0
+    assert every["f1_snr_ge5"] == pytest.approx(2 / 3)
+    # At 0.75 rows 0, 3 and 5: the 7 σ flash (row 2, 0.7) is lost, the false row 5 kept.
+    assert (likely["n_detections"], likely["n_true"], likely["n_found_snr_ge5"]) == (3, 2, 1)
+    assert likely["precision"] == pytest.approx(2 / 3) and likely["recall_snr_ge5"] == 0.5
+    assert likely["f1_snr_ge5"] == pytest.approx(4 / 7)
+    assert none["n_detections"] == 0 and none["precision"] is None
+    assert none["recall_snr_ge5"] == 0.0 and none["f1_snr_ge5"] is None
+    # Pooled cut by cut; a run scored by the rules (None) adds nothing.
+    runs = [
+        {"seed": seed, "cameras": _no_cameras(), "points_3d": None, "cuts": cuts}
+        for seed, cuts in (
+            (1, {"cam1": [every, likely], "cam2": None}),
+            (2, {"cam1": [every, likely], "cam2": None}),
+            (3, None),
+        )
+    ]
+    pooled = pool(runs)["cuts"]
+    assert pooled["cam2"] is None
+    assert [e["cut"] for e in pooled["cam1"]] == [0.0, 0.75]
+    assert (pooled["cam1"][1]["n_detections"], pooled["cam1"][1]["n_true"]) == (6, 4)
+    assert pooled["cam1"][1]["precision"] == pytest.approx(2 / 3)
+    assert pooled["cam1"][1]["f1_snr_ge5"] == pytest.approx(4 / 7)
+
+
 def _no_cameras() -> dict[str, dict[str, None]]:
     return {cam: {"accepted": None, "candidates": None} for cam in ("cam1", "cam2")}
 
@@ -288,7 +321,8 @@ def test_eval_detection_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture
     params.write_text(json.dumps({"sync": {"window_s": 4.0}}))
     args = ["eval-detection", "--scenario", "clean", "--seeds", "3", "--seconds", "8"]
     args += ["--width", "640", "--cache", str(tmp_path / "cache"), "--params", str(params)]
-    args += ["--json", str(out), "--quiet"]
+    threshold = EvidenceModel.load(DEFAULT_EVIDENCE_MODEL).threshold
+    args += ["--json", str(out), "--quiet", "--cuts", "0.3", str(threshold), "0.99"]
     assert main(args) == 0
     table = capsys.readouterr().out
     assert "clean s3" in table and "SNR>=5" in table
@@ -325,6 +359,15 @@ def test_eval_detection_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture
     assert points["recall"] - 0.02 <= points["pair_recall"] <= stereo["recall"]
     assert "pair rec/prec" in table
     assert run["accuracy"]["delay_error_frames"] == 0
+    # At the model's own cut the candidates scored are exactly the accepted detections;
+    # a higher cut keeps fewer of them.
+    assert "evidence-model cut" in table
+    for cam in ("cam1", "cam2"):
+        low, own, high = run["cuts"][cam]
+        accepted = run["cameras"][cam]["accepted"]
+        for key in ("n_detections", "n_true", "n_found_snr_ge5", "n_truth_snr_ge5"):
+            assert own[key] == accepted[key]
+        assert low["n_detections"] >= own["n_detections"] >= high["n_detections"]
     assert document["pooled"]["clean"]["n_runs"] == 1
 
     again = tmp_path / "again.json"
