@@ -23,9 +23,15 @@ so the same seed gives the same truth and the same pixels.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+import multiprocessing
+import os
+import pickle
+import queue
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from multiprocessing.process import BaseProcess
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -147,6 +153,7 @@ def simulate(
     config: SimulationConfig,
     out_dir: str | Path,
     progress: Callable[[int], None] | None = None,
+    parallel: bool | None = None,
 ) -> SimulatedRecording:
     """Render a stereo recording and write it with its ground truth.
 
@@ -160,6 +167,10 @@ def simulate(
     progress : callable, optional
         Called with ``1`` after each frame is written (``2 * config.n_frames`` calls
         in all), e.g. ``tqdm.update``.
+    parallel : bool, optional
+        Render the two cameras at once, in a process each (`render_in_processes`); the
+        files are the same byte for byte. None: when the machine has more than one core
+        and the calling process may fork children.
 
     Returns
     -------
@@ -168,8 +179,13 @@ def simulate(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     drawn = plan(config)
-    for camera in (1, 2):
-        _render_camera(drawn, camera, out, progress)
+    if parallel is None:
+        parallel = _worth_processes()
+    if parallel:
+        render_in_processes(drawn, out, progress)
+    else:
+        for camera in (1, 2):
+            _render_camera(drawn, camera, out, progress)
     truth = drawn.truth()
     truth.save(out)
     return SimulatedRecording(
@@ -329,6 +345,89 @@ def with_noise(flashes: FlashTruth, scene: Scene, config: SimulationConfig) -> F
             config.grain_px,
         )
     return dataclasses.replace(flashes, **columns)
+
+
+def _worth_processes() -> bool:
+    return (
+        (os.cpu_count() or 1) > 1
+        and "fork" in multiprocessing.get_all_start_methods()
+        and not multiprocessing.current_process().daemon  # a daemon may not have children
+    )
+
+
+def render_in_processes(
+    drawn: SimulationPlan, out: Path, progress: Callable[[int], None] | None = None
+) -> None:
+    """Render and encode both cameras at once, one process each.
+
+    Rendering is single-threaded numpy, so one camera leaves a core idle; each camera
+    draws from random streams of its own, so the files are those of rendering the
+    cameras in turn, byte for byte. The children are forked: a spawned one would import
+    the caller's main module again (a script without a ``__main__`` guard would start
+    over) and NumPy, SciPy and PyAV afresh; they only render with numpy and encode with
+    encoders of their own. A child's exception is raised here; a child that dies without
+    one raises RuntimeError.
+    """
+    context = multiprocessing.get_context("fork")
+    messages: Any = context.Queue()
+    workers = {
+        camera: context.Process(
+            target=_render_camera_process,
+            args=(drawn, camera, out, messages),
+            name=f"firefly3d-render-cam{camera}",
+        )
+        for camera in (1, 2)
+    }
+    for worker in workers.values():
+        worker.start()
+    try:
+        running = set(workers)
+        while running:
+            kind, value = _next_message(messages, workers, running)
+            if kind == "frame" and progress is not None:
+                progress(1)
+            elif kind == "done":
+                running.discard(value)
+            elif kind == "error":
+                raise value
+    finally:
+        for worker in workers.values():
+            if worker.is_alive():
+                worker.terminate()
+            worker.join()
+
+
+def _next_message(
+    messages: Any, workers: Mapping[int, BaseProcess], running: set[int]
+) -> tuple[str, Any]:
+    """The next message of the render processes; RuntimeError if one of those still
+    running has stopped without a last word."""
+    while True:
+        try:
+            return messages.get(timeout=1.0)
+        except queue.Empty:
+            dead = [c for c in sorted(running) if workers[c].exitcode is not None]
+            if not dead:
+                continue
+        try:  # its last message may have arrived just after the wait
+            return messages.get(timeout=1.0)
+        except queue.Empty:
+            code = workers[dead[0]].exitcode
+            raise RuntimeError(f"rendering camera {dead[0]} stopped (exit code {code})") from None
+
+
+def _render_camera_process(drawn: SimulationPlan, camera: int, out: Path, messages: Any) -> None:
+    """A child of `render_in_processes`: one camera, its progress and outcome as messages."""
+    try:
+        _render_camera(drawn, camera, out, lambda n: messages.put(("frame", n)))
+    except Exception as exc:  # handed to the parent, which raises it
+        try:
+            pickle.dumps(exc)
+        except Exception:  # some library errors do not pickle
+            exc = RuntimeError(f"rendering camera {camera}: {exc!r}")
+        messages.put(("error", exc))
+    else:
+        messages.put(("done", camera))
 
 
 def _render_camera(

@@ -1,5 +1,7 @@
 from __future__ import annotations
 
+import hashlib
+import os
 from pathlib import Path
 
 import av
@@ -9,6 +11,7 @@ from numpy.typing import NDArray
 from pydantic import ValidationError
 from scipy import ndimage
 
+from pipeline import simulate as simulate_module
 from pipeline.geometry import angle_between, bearing_to_pixel, rotation_angle
 from pipeline.simulate import (
     SimulatedRecording,
@@ -232,6 +235,46 @@ def test_same_seed_same_pixels() -> None:
     second = plan(config).renderer(2)
     for frame in (0, 17):
         np.testing.assert_array_equal(first.render(frame), second.render(frame))
+
+
+def test_cameras_rendered_at_once_give_the_same_files(tmp_path: Path) -> None:
+    """Each camera in a process of its own (the default on several cores) writes the
+    files of rendering them in turn, byte for byte, with progress for every frame."""
+    config = SimulationConfig(scenario="hard-all", seed=4, seconds=1.0, chapters=(1, 2))
+    digests = []
+    for parallel in (False, True):
+        frames: list[int] = []
+        out = tmp_path / str(parallel)
+        simulate(config, out, progress=frames.append, parallel=parallel)
+        assert sum(frames) == 2 * config.n_frames
+        digests.append({p.name: hashlib.sha256(p.read_bytes()).digest() for p in out.iterdir()})
+    assert digests[0] == digests[1] and len(digests[0]) == 6  # 3 chapters + 3 truth files
+
+
+def _fail_rendering(drawn: object, camera: int, out: Path, progress: object) -> None:
+    if camera == 2:
+        raise ValueError("camera 2 cannot be rendered")
+
+
+def _die_rendering(drawn: object, camera: int, out: Path, progress: object) -> None:
+    if camera == 2:
+        os._exit(3)
+
+
+@pytest.mark.parametrize(
+    ("render", "error", "message"),
+    [
+        (_fail_rendering, ValueError, "camera 2 cannot be rendered"),
+        (_die_rendering, RuntimeError, r"rendering camera 2 stopped \(exit code 3\)"),
+    ],
+)
+def test_a_failing_render_process_fails_the_recording(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, render: object, error: type, message: str
+) -> None:
+    monkeypatch.setattr(simulate_module, "_render_camera", render)
+    config = SimulationConfig(seed=1, seconds=0.5)
+    with pytest.raises(error, match=message):
+        simulate_module.render_in_processes(plan(config), tmp_path)
 
 
 def test_default_pose_is_side_by_side_and_roughly_parallel() -> None:
