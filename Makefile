@@ -38,6 +38,7 @@ bench: install services
 	$(BIN)/python -m bench.bench_tracking
 	$(BIN)/python -m bench.bench_classifier
 	$(BIN)/python -m bench.bench_stages
+	$(BIN)/python -m bench.bench_simulate
 	$(BIN)/python -m bench.bench_service
 
 ## Refresh the pages' front-end libraries (package.json) in services/api/static/vendor.
