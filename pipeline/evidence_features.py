@@ -8,7 +8,10 @@ the delay and the pose are known, from the other one:
   than the dark, and trees do not take the difference of two columns themselves);
 * its light curve (`pipeline.acceptance.spot_chains`): how long the spot stays lit
   (faint peaks counted), how long it is a candidate, how many candidates the chain
-  holds, the chain's best SNR and probability;
+  holds, the chain's best SNR and probability, and, explicit for the same reason as the
+  noise, the candidate's SNR against that best and the share of the lit spell the
+  candidates hold (in wind a flash's spot is busy: leaf clutter before and after it
+  lengthens the spell and joins its chain);
 * how crowded its camera is with candidates at least as strong (`as_strong_per_frame`):
   in a frame full of grain speckle a chance stereo partner is likely, in a quiet one not;
 * the artifact tests: recurrence (`pipeline.recurrence`), flicker duty
@@ -58,6 +61,8 @@ _OWN: tuple[str, ...] = (
     "flicker_duty",
     "spot_revisits",
     "noise_log",
+    "chain_snr_share_log",
+    "candidate_lit_share",
     *_VERDICTS,
 )
 #: Own columns of the matched candidate of the other camera, read as ``other_<name>``.
@@ -208,6 +213,8 @@ def _own_features(
                 duty,
                 revisits[ev.chain],
                 peak_log - snr_log,
+                snr_log - np.log(peak_snr[ev.chain]),
+                candidate_lit / ev.lit_frames,
                 verdicts,
             ]
         )

@@ -96,6 +96,21 @@ def test_own_evidence_columns_describe_the_light_curve() -> None:
     np.testing.assert_allclose(
         np.exp(_col(rows1, "noise_log")), 40.0 / np.exp(_col(rows1, "snr_log"))
     )
+    # Each candidate against its light curve's best (7 σ; the noise spot is its own).
+    np.testing.assert_allclose(
+        np.exp(_col(rows1, "chain_snr_share_log")), [6 / 7, 1.0, 6.5 / 7, 5.5 / 7, 1.0]
+    )
+    np.testing.assert_allclose(_col(rows1, "candidate_lit_share"), 1.0)
+
+
+def test_faint_peaks_lengthening_the_lit_spell_lower_the_candidates_share() -> None:
+    """A spot lit 8 frames of which the candidates hold 4 (faint peaks the rest), as in
+    wind, where leaf clutter at a flash's spot lengthens its spell."""
+    candidates, evidence = _scene()
+    longer = tuple(replace(e, lit_frames=e.lit_frames * 2) for e in evidence)
+    rows1, _ = _features(candidates, longer, fps=30.0)
+    np.testing.assert_allclose(_col(rows1, "candidate_lit_share"), 0.5)
+    np.testing.assert_allclose(_col(rows1, "lit_s"), [8 / 30] * 4 + [2 / 30])
 
 
 def test_the_flicker_duty_the_merge_stage_measured_is_the_one_read() -> None:

@@ -43,12 +43,13 @@ def test_the_shipped_model_reads_this_releases_features() -> None:
 def test_a_model_reads_its_own_columns_of_the_features() -> None:
     model = EvidenceModel.load(DEFAULT_EVIDENCE_MODEL)
     unread = [name for name in FEATURES if name not in model.features]
-    assert unread == ["noise_log"]  # added after the shipped model was trained
+    # Added after the shipped model was trained.
+    assert unread == ["noise_log", "chain_snr_share_log", "candidate_lit_share"]
     rows = np.tile(np.linspace(0.1, 0.9, len(FEATURES)), (3, 1))
-    rows[1, FEATURES.index("noise_log")] = 50.0
+    rows[1, [FEATURES.index(name) for name in unread]] = 50.0
     rows[2, FEATURES.index("snr_log")] = 4.0
     p = model.probability(rows)
-    assert p[1] == p[0]  # a column it does not read
+    assert p[1] == p[0]  # columns it does not read
     assert p[2] != p[0]  # one it reads
 
 
