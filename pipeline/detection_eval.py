@@ -747,16 +747,16 @@ def format_cuts(rows: list[Row]) -> str:
             lines.append(f"{row.name:<24} no evidence-model probabilities (the rules decided)")
             continue
         for i, cut in enumerate(e["cut"] for e in present[0]):
-            at = [c[i] if c else None for c in cameras]
-
-            def both(key: str, at: list[dict[str, Any] | None] = at) -> str:
-                return "/".join(_f(None if e is None else e[key]) for e in at)
-
-            true = sum(e["n_true"] for e in at if e)
-            false = sum(e["n_detections"] - e["n_true"] for e in at if e)
+            at = [c[i] if c else {} for c in cameras]
+            recall, precision, f1 = (
+                "/".join(_f(e.get(key)) for e in at)
+                for key in ("recall_snr_ge5", "precision", "f1_snr_ge5")
+            )
+            true = sum(e.get("n_true", 0) for e in at)
+            false = sum(e.get("n_detections", 0) for e in at) - true
             lines.append(
-                f"{row.name:<24} {cut:>5.3g} {both('recall_snr_ge5'):>12} "
-                f"{both('precision'):>10} {both('f1_snr_ge5'):>9} {f'{true:,} / {false:,}':>14}"
+                f"{row.name:<24} {cut:>5.3g} {recall:>12} {precision:>10} {f1:>9} "
+                f"{f'{true:,} / {false:,}':>14}"
             )
     return "\n".join(lines)
 

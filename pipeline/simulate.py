@@ -384,8 +384,8 @@ def render_in_processes(
         running = set(workers)
         while running:
             kind, value = _next_message(messages, workers, running)
-            if kind == "frame" and progress is not None:
-                progress(1)
+            if kind == "frames" and progress is not None:
+                progress(value)
             elif kind == "done":
                 running.discard(value)
             elif kind == "error":
@@ -419,7 +419,7 @@ def _next_message(
 def _render_camera_process(drawn: SimulationPlan, camera: int, out: Path, messages: Any) -> None:
     """A child of `render_in_processes`: one camera, its progress and outcome as messages."""
     try:
-        _render_camera(drawn, camera, out, lambda n: messages.put(("frame", n)))
+        _render_camera(drawn, camera, out, lambda n: messages.put(("frames", n)))
     except Exception as exc:  # handed to the parent, which raises it
         try:
             pickle.dumps(exc)
