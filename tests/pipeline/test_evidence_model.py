@@ -26,6 +26,7 @@ from pipeline.params import (
     TrackingParams,
     TriangulationParams,
 )
+from pipeline.trees import TreeEnsemble
 
 WIDTH, FPS, SEPARATION = 640, 30.0, 1.5
 POSE = Pose(np.eye(3), [1.0, 0.0, 0.0])
@@ -41,16 +42,26 @@ def test_the_shipped_model_reads_this_releases_features() -> None:
 
 
 def test_a_model_reads_its_own_columns_of_the_features() -> None:
-    model = EvidenceModel.load(DEFAULT_EVIDENCE_MODEL)
-    unread = [name for name in FEATURES if name not in model.features]
-    # Added after the shipped model was trained.
-    assert unread == ["noise_log", "chain_snr_share_log", "candidate_lit_share"]
-    rows = np.tile(np.linspace(0.1, 0.9, len(FEATURES)), (3, 1))
-    rows[1, [FEATURES.index(name) for name in unread]] = 50.0
-    rows[2, FEATURES.index("snr_log")] = 4.0
+    # One split on the model's first column, which is FEATURES' "probability": a model
+    # trained before the other features existed.
+    stump = TreeEnsemble(
+        feature=np.array([0, -1, -1]),
+        threshold=np.array([0.5, 0.0, 0.0]),
+        missing_left=np.zeros(3, bool),
+        left=np.array([1, 1, 2]),
+        right=np.array([2, 1, 2]),
+        value=np.array([0.0, -2.0, 2.0]),
+        roots=np.array([0]),
+        baseline=0.0,
+        n_features=1,
+    )
+    model = EvidenceModel(stump, 0.5, DEFAULT_MODEL_NAME, {}, features=("probability",))
+    rows = np.full((3, len(FEATURES)), 0.2)
+    rows[1, [i for i, name in enumerate(FEATURES) if name != "probability"]] = 50.0
+    rows[2, FEATURES.index("probability")] = 0.9
     p = model.probability(rows)
     assert p[1] == p[0]  # columns it does not read
-    assert p[2] != p[0]  # one it reads
+    assert p[0] < 0.5 < p[2]  # the one it reads
 
 
 def test_a_model_of_other_features_is_refused(tmp_path) -> None:
