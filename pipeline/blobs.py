@@ -50,6 +50,12 @@ class Blobs:
         Brightest luminance pixel of the blob (ties: the first in raster order).
     snr : float64
         Largest matched-filter response in the blob, in units of the noise σ.
+    trough : float64
+        Lowest matched-filter response around the blob's peak over the peak's response
+        (`trough`); NaN where not measured.
+    hollow : float64
+        How much darker than a moment ago the darkest spot around the peak has become,
+        over the peak's response (`pipeline.hollow.hollow_depth`); NaN where not measured.
     """
 
     x: NDArray[np.float64]
@@ -59,6 +65,8 @@ class Blobs:
     peak_x: NDArray[np.intp]
     peak_y: NDArray[np.intp]
     snr: NDArray[np.float64]
+    trough: NDArray[np.float64]
+    hollow: NDArray[np.float64]
 
     def __len__(self) -> int:
         return len(self.x)
@@ -67,7 +75,15 @@ class Blobs:
     def empty(cls) -> Self:
         none_f, none_i = np.zeros(0), np.zeros(0, np.intp)
         return cls(
-            x=none_f, y=none_f, area=none_i, peak=none_f, peak_x=none_i, peak_y=none_i, snr=none_f
+            x=none_f,
+            y=none_f,
+            area=none_i,
+            peak=none_f,
+            peak_x=none_i,
+            peak_y=none_i,
+            snr=none_f,
+            trough=none_f,
+            hollow=none_f,
         )
 
     def select(self, rows: NDArray[np.intp]) -> Self:
@@ -226,13 +242,49 @@ def ring_max(
     -------
     ndarray of float64, shape (N,)
     """
+    window = _window(radius)
+    return np.asarray(
+        _around(image, idx, window[np.abs(window).max(axis=1) == radius]).max(axis=1), np.float64
+    )
+
+
+def trough(image: NDArray[np.floating], idx: NDArray[np.intp], radius: int) -> NDArray[np.float64]:
+    """Lowest value of `image` within `radius` pixels (Chebyshev) of each pixel, over
+    the pixel's own value.
+
+    On the matched-filtered foreground (frame − background) a light that appears from
+    nothing, as a flash does, stands on a neighbourhood near 0 (noise); a light that
+    moved leaves a dark hollow where the background still holds it, and a swaying edge
+    is bright on one side and dark on the other: both give a trough well below 0.
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W)
+        The matched filter's response, grey levels (signed).
+    idx : ndarray of intp, shape (N,)
+        Flat indices of the peaks (positive values).
+    radius : int
+        Half side of the square window, pixels (≥ 1). Columns wrap at the 360° seam;
+        rows beyond the poles read the pole row.
+
+    Returns
+    -------
+    ndarray of float64, shape (N,)
+        At most 1; 0 for a window at the background's level, negative below it.
+    """
+    lowest = _around(image, idx, _window(radius)).min(axis=1)
+    return np.minimum(lowest, image.ravel()[idx]).astype(np.float64) / image.ravel()[idx]
+
+
+def _around(
+    image: NDArray[np.floating], idx: NDArray[np.intp], offsets: NDArray[np.intp]
+) -> NDArray[np.floating]:
+    """(N, K) values of `image` at `offsets` ``(dr, dc)`` from each flat index (columns
+    wrap at the 360° seam, rows beyond the poles read the pole row)."""
     height, width = image.shape
     rows, cols = np.divmod(idx, width)
-    window = _window(radius)
-    dr, dc = window[np.abs(window).max(axis=1) == radius].T
-    ring_rows = np.clip(rows[:, None] + dr, 0, height - 1)
-    ring_cols = (cols[:, None] + dc) % width
-    return np.asarray(image[ring_rows, ring_cols].max(axis=1), np.float64)
+    dr, dc = offsets.T
+    return image[np.clip(rows[:, None] + dr, 0, height - 1), (cols[:, None] + dc) % width]
 
 
 def split_at_peaks(
@@ -341,6 +393,8 @@ def measure(
     snr: NDArray[np.float64],
     x: NDArray[np.float64],
     y: NDArray[np.float64],
+    troughs: NDArray[np.float64],
+    hollows: NDArray[np.float64],
 ) -> Blobs:
     """Measure labelled blobs of one frame at full resolution.
 
@@ -358,6 +412,8 @@ def measure(
         Each blob's largest filtered response in units of σ (passed through).
     x, y : ndarray of float, shape (n,)
         Each blob's centroid (`centroid`), pixels (passed through).
+    troughs, hollows : ndarray of float, shape (n,)
+        Each blob's `trough` and hollow depth (passed through).
 
     Returns
     -------
@@ -381,4 +437,6 @@ def measure(
         peak_x=cols[order[starts]],
         peak_y=rows[order[starts]],
         snr=snr,
+        trough=troughs,
+        hollow=hollows,
     )

@@ -45,6 +45,14 @@ class Detections:
     recurrence : float32
         Share of the frames 0.5–3 s before in which the spot was as bright
         (`pipeline.recurrence`); NaN where not measured.
+    trough : float32
+        Lowest matched-filter response around the peak over the peak's own
+        (`pipeline.blobs.trough`): about 0 for a light that appeared from nothing, well
+        below 0 beside a light that moved or a swaying edge; NaN where not measured.
+    hollow : float32
+        How much darker than 0.1–0.4 s before the darkest spot around the peak has
+        become, over the peak's response (`pipeline.hollow`): about 0 for a flash, down
+        to −1 beside a light that moved; NaN where not measured.
     """
 
     frame: np.ndarray
@@ -57,6 +65,8 @@ class Detections:
     flash_probability: np.ndarray
     snr: np.ndarray
     recurrence: np.ndarray
+    trough: np.ndarray
+    hollow: np.ndarray
 
     _DTYPES: ClassVar[dict[str, type]] = {
         "frame": np.int64,
@@ -69,6 +79,8 @@ class Detections:
         "flash_probability": np.float32,
         "snr": np.float32,
         "recurrence": np.float32,
+        "trough": np.float32,
+        "hollow": np.float32,
     }
 
     def __post_init__(self) -> None:
@@ -98,11 +110,14 @@ class Detections:
         flash_probability: ArrayLike | None = None,
         snr: ArrayLike | None = None,
         recurrence: ArrayLike | None = None,
+        trough: ArrayLike | None = None,
+        hollow: ArrayLike | None = None,
     ) -> Self:
         """Build a table from the required columns; optional ones get neutral defaults.
 
         Missing ``peak_x``/``peak_y`` default to the rounded centroid, ``area`` to 1,
-        ``peak``, ``flash_probability``, ``snr`` and ``recurrence`` to NaN.
+        ``peak``, ``flash_probability``, ``snr``, ``recurrence``, ``trough`` and ``hollow`` to
+        NaN.
         """
         x = np.asarray(x, dtype=np.float64)
         y = np.asarray(y, dtype=np.float64)
@@ -120,6 +135,8 @@ class Detections:
             ),
             snr=np.full(n, np.nan) if snr is None else np.asarray(snr),
             recurrence=np.full(n, np.nan) if recurrence is None else np.asarray(recurrence),
+            trough=np.full(n, np.nan) if trough is None else np.asarray(trough),
+            hollow=np.full(n, np.nan) if hollow is None else np.asarray(hollow),
         )
 
     @classmethod

@@ -3,9 +3,13 @@
 Every candidate of a camera gets one row of `FEATURES`, from its own camera and, once
 the delay and the pose are known, from the other one:
 
-* its own patch and spot: SNR, the classifier's probability, its peak foreground and
-  the noise at the spot (peak over SNR: a sky seen through swaying leaves is noisier
-  than the dark, and trees do not take the difference of two columns themselves);
+* its own patch and spot: SNR, the classifier's probability, its peak foreground, the
+  noise at the spot (peak over SNR: a sky seen through swaying leaves is noisier than
+  the dark, and trees do not take the difference of two columns themselves), and how
+  dark it is beside it: against the running background (`pipeline.blobs.trough`: a
+  swaying edge is bright on one side, dark on the other) and against the frames a
+  moment before (`pipeline.hollow`: a light that moved leaves a dark hollow where it
+  was; a flash lights up from nothing);
 * its light curve (`pipeline.acceptance.spot_chains`): how long the spot stays lit
   (faint peaks counted), how long it is a candidate, how many candidates the chain
   holds, the chain's best SNR and probability, and, explicit for the same reason as the
@@ -63,6 +67,8 @@ _OWN: tuple[str, ...] = (
     "noise_log",
     "chain_snr_share_log",
     "candidate_lit_share",
+    "trough",
+    "hollow",
     *_VERDICTS,
 )
 #: Own columns of the matched candidate of the other camera, read as ``other_<name>``.
@@ -215,6 +221,8 @@ def _own_features(
                 peak_log - snr_log,
                 snr_log - np.log(peak_snr[ev.chain]),
                 candidate_lit / ev.lit_frames,
+                det.trough.astype(np.float64),
+                det.hollow.astype(np.float64),
                 verdicts,
             ]
         )

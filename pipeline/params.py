@@ -127,6 +127,17 @@ class TrackingParams(BaseModel):
         "of a point flash's spot (real GoPro 360 flashes: 1.2–1.9 px); 0 disables it. On a "
         "binned foreground it is σ / bin_px bins.",
     )
+    trough_radius_px: float = Field(
+        default=4.0,
+        gt=0,
+        le=50,
+        description="Half side of the square around a candidate's peak searched for the "
+        "darkest spot, in pixels of the recording (at least one analysed pixel): against "
+        "the running background (the trough) and against the frames 0.1-0.4 s before (the "
+        "hollow), each over the peak's response. Evidence for acceptance: a light that "
+        "moved or a swaying edge leaves a dark spot beside it, a flash does not (4 and 8 "
+        "px did as well on the tuning nights at 640 and 1280 px; docs/detection.md).",
+    )
     bin_px: int | None = Field(
         default=None,
         ge=1,

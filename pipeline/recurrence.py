@@ -67,6 +67,45 @@ class BrightHistory:
             self._frames[slot] = image
             self._index[slot] = k
 
+    def mean_before(
+        self,
+        k: int,
+        lags: tuple[int, int],
+        rows: NDArray[np.intp],
+        cols: NDArray[np.intp],
+        offsets: NDArray[np.intp],
+    ) -> NDArray[np.float32] | None:
+        """Mean luminance of the kept frames ``lags[0]`` to ``lags[1]`` before frame `k`
+        around each pixel.
+
+        Parameters
+        ----------
+        k : int
+            Global index of the current frame.
+        lags : (int, int)
+            Nearest and farthest lag, frames (within the history's ``window_s``).
+        rows, cols : ndarray of int, shape (N,)
+            Pixels in the (binned) frame.
+        offsets : ndarray of int, shape (P, 2)
+            ``(dr, dc)`` read around each pixel (columns wrap at the 360° seam, rows
+            beyond the poles read the pole row).
+
+        Returns
+        -------
+        ndarray of float32, shape (N, P), or None
+            None when no frame of those lags is kept (the start of a video).
+        """
+        lag = k - self._index
+        slots = np.flatnonzero((self._index >= 0) & (lag >= lags[0]) & (lag <= lags[1]))
+        if len(slots) == 0:
+            return None
+        height, width = self._frames.shape[1:]
+        r = np.clip(rows[:, None] + offsets[:, 0], 0, height - 1)
+        c = (cols[:, None] + offsets[:, 1]) % width
+        pixel = (r * width + c).ravel()
+        past = self._frames.reshape(len(self._index), -1)[slots[:, None], pixel]
+        return past.mean(axis=0, dtype=np.float32).reshape(len(rows), len(offsets))
+
     def recurrence(
         self, k: int, image: NDArray[np.uint8], rows: NDArray[np.intp], cols: NDArray[np.intp]
     ) -> NDArray[np.float32]:

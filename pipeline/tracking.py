@@ -81,10 +81,12 @@ from pipeline.blobs import (
     ring_max,
     split_at_peaks,
     subpixel_peak,
+    trough,
     upsample,
 )
 from pipeline.chunking import frames_read
 from pipeline.detections import Detections
+from pipeline.hollow import hollow_depth
 from pipeline.matched_filter import bin_image, binning, matched_filter
 from pipeline.noise import SAMPLE_EVERY, PixelNoise, tile_grid
 from pipeline.params import TrackingParams
@@ -304,6 +306,8 @@ class _FrameDetector:
         radius = max(1, math.ceil(2 * self._sigma))  # of a local maximum
         self._pixels = PixelIndex(self._binned, min(radius, self._binned[1]))
         self._ring_px = max(radius + 1, math.ceil(3 * self._sigma))
+        self._trough_px = max(1, round(params.trough_radius_px / self._bin))
+        self._fps = info.fps
         # The foreground and its filtered image, reused by every lane and frame: a fresh
         # pair per frame costs the kernel ~2,000 page faults a frame at 4K.
         self._foreground = np.empty(self._binned, np.float32)
@@ -336,7 +340,9 @@ class _FrameDetector:
                     noise = lane.noise.pixel_noise(
                         self._binned, self._params.min_noise, self._params.extent_threshold
                     )
-                    found = self._detect(filtered, noise, image, lane.background.level())
+                    found = self._detect(
+                        filtered, noise, image, lane.background.level(), small, frame.index
+                    )
             lane.background.update(small)
         self._history.add(frame.index, small)
         self._last = (frame.index, small)
@@ -372,6 +378,8 @@ class _FrameDetector:
         noise: PixelNoise,
         luma: NDArray[np.uint8],
         background: NDArray[np.float32],
+        small: NDArray[np.uint8],
+        k: int,
     ) -> tuple[Blobs, FaintPeaks]:
         idx, snr = self._extent_pixels(filtered, noise, background)
         idx, snr = self._limit_pixels(idx, snr)
@@ -386,7 +394,19 @@ class _FrameDetector:
         full_idx, full_labels = upsample(idx, labels, width, self._bin)
         rows, cols = np.divmod(full_idx, luma.shape[1])
         values = luma[rows, cols] - background[rows // self._bin, cols // self._bin]
-        blobs = measure(full_idx, full_labels, values, luma, blob_snr[keep], x, y)
+        peaks = peak[keep]
+        troughs = trough(filtered, peaks, self._trough_px)
+        hollows = hollow_depth(
+            small,
+            k,
+            self._history,
+            self._fps,
+            peaks,
+            filtered.ravel()[peaks],
+            self._trough_px,
+            self._sigma,
+        )
+        blobs = measure(full_idx, full_labels, values, luma, blob_snr[keep], x, y, troughs, hollows)
         faint_idx, faint_snr = self._faint_cap(faint_idx, faint_snr)
         faint_x, faint_y = subpixel_peak(filtered, faint_idx, self._bin)
         return blobs, FaintPeaks(faint_x, faint_y, faint_snr)
@@ -568,6 +588,8 @@ def _candidate_rows(frame_index: int, blobs: Blobs, recurrence: NDArray[np.float
         peak_y=blobs.peak_y,
         snr=blobs.snr,
         recurrence=recurrence,
+        trough=blobs.trough,
+        hollow=blobs.hollow,
     )
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.blobs import PixelIndex, label, local_maxima, ring_max
+from pipeline.blobs import PixelIndex, label, local_maxima, ring_max, trough
 
 
 def index_of(mask: np.ndarray, margin: int) -> tuple[PixelIndex, np.ndarray]:
@@ -90,3 +90,18 @@ def test_the_ring_wraps_at_the_seam_and_reads_the_pole_row_beyond_it() -> None:
     assert ring_max(image, centre[:1], 3)[0] == 5.0
     assert ring_max(image, centre[:1], 2)[0] == 0.0  # radius 2 misses both
     assert ring_max(image, np.zeros(0, np.intp), 3).shape == (0,)
+
+
+def test_the_trough_is_the_lowest_value_around_a_peak_over_the_peak() -> None:
+    image = np.zeros((6, 10))
+    image[3, 1] = image[1, 5] = 8.0
+    image[3, 9] = -4.0  # two columns from (3, 1) across the seam
+    image[0, 6] = -2.0  # beyond the top pole from (1, 5) at radius 2: read as row 0
+    peaks = np.array([3 * 10 + 1, 1 * 10 + 5])
+    np.testing.assert_allclose(trough(image, peaks, 2), [-0.5, -0.25])
+    assert trough(image, peaks[:1], 1)[0] == 0.0  # radius 1 misses the hollow
+    image[3, 2] = 9.0  # a brighter neighbour does not raise it above the peak's own value
+    assert trough(image, peaks[:1], 1)[0] == 0.0
+    image[:] = 3.0  # a window all as bright as the peak: 1
+    assert trough(image, peaks[:1], 2)[0] == 1.0
+    assert trough(image, np.zeros(0, np.intp), 2).shape == (0,)

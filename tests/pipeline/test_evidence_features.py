@@ -101,6 +101,18 @@ def test_own_evidence_columns_describe_the_light_curve() -> None:
         np.exp(_col(rows1, "chain_snr_share_log")), [6 / 7, 1.0, 6.5 / 7, 5.5 / 7, 1.0]
     )
     np.testing.assert_allclose(_col(rows1, "candidate_lit_share"), 1.0)
+    assert np.all(np.isnan(_col(rows1, "trough")))  # not measured here
+    assert np.all(np.isnan(_col(rows1, "hollow")))
+
+
+def test_the_dark_spots_the_tracker_measured_are_read() -> None:
+    (det1, det2), evidence = _scene()
+    troughs = np.array([-0.02, -0.6, 0.0, -0.1, -1.5])
+    hollows = np.array([0.0, -0.9, -0.05, 0.1, -0.3])
+    det1 = replace(det1, trough=troughs.astype(np.float32), hollow=hollows.astype(np.float32))
+    rows1, _ = _features((det1, det2), evidence, fps=30.0)
+    np.testing.assert_allclose(_col(rows1, "trough"), troughs, rtol=1e-6)
+    np.testing.assert_allclose(_col(rows1, "hollow"), hollows, rtol=1e-6)
 
 
 def test_faint_peaks_lengthening_the_lit_spell_lower_the_candidates_share() -> None:

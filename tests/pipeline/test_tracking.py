@@ -415,6 +415,27 @@ def test_spots_between_the_lit_and_seed_levels_are_faint_peaks(tmp_path: Path) -
     assert len(capped.faint_peaks) == 0 and capped.stats.faint_over_cap == 1
 
 
+def test_a_light_that_moved_leaves_a_dark_spot_and_a_flash_does_not(tmp_path: Path) -> None:
+    # Frames 0-39: a lamp at u = 300; frame 40: it has jumped 3 px to the right, and a
+    # flash lights up from nothing at u = 500. Both the running background and the frames
+    # a moment before still hold the lamp where it was: beside its new position the frame
+    # is darker than both (trough and hollow), beside the flash it is not.
+    lamp = vf.gaussian_spots(H, W, [300.0], [160.0], [120.0], 1.0, BACKGROUND)
+    moved = vf.gaussian_spots(H, W, [303.0, 500.0], [160.0] * 2, [120.0] * 2, 1.0, BACKGROUND)
+    info = probe_video([vf.write_video(tmp_path / "moved.mp4", [lamp] * 40 + [moved], crf=4)])
+    found = track_with_stats(info, params=FAST).detections
+    last = found.select(found.frame == 40)
+    at_lamp, at_flash = _near(last, 303.0, 160.0), _near(last, 500.0, 160.0)
+    assert at_lamp.sum() == 1 and at_flash.sum() == 1
+    assert last.trough[at_lamp][0] < -0.5 and last.hollow[at_lamp][0] < -0.5
+    assert abs(last.trough[at_flash][0]) < 0.05 and abs(last.hollow[at_flash][0]) < 0.05
+    # Searched over a square too small to reach where the lamp was, it has neither.
+    near = track_with_stats(info, params=FAST.model_copy(update={"trough_radius_px": 1.0}))
+    rows = near.detections.select(near.detections.frame == 40)
+    assert rows.trough[_near(rows, 303.0, 160.0)][0] > -0.1
+    assert rows.hollow[_near(rows, 303.0, 160.0)][0] > -0.1
+
+
 def test_flooded_frame_is_capped_and_counted(tmp_path: Path) -> None:
     rng = np.random.default_rng(5)
     pictures = [vf.gaussian_spots(H, W, [320.4], [160.6], [150.0], 1.0, BACKGROUND)] * 8
