@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, fields
-from typing import Self
+from typing import Any, Self
 
 import numpy as np
 from numpy.typing import NDArray
@@ -73,18 +73,11 @@ class Blobs:
 
     @classmethod
     def empty(cls) -> Self:
-        none_f, none_i = np.zeros(0), np.zeros(0, np.intp)
-        return cls(
-            x=none_f,
-            y=none_f,
-            area=none_i,
-            peak=none_f,
-            peak_x=none_i,
-            peak_y=none_i,
-            snr=none_f,
-            trough=none_f,
-            hollow=none_f,
-        )
+        integer = {"area", "peak_x", "peak_y"}
+        columns: dict[str, Any] = {
+            f.name: np.zeros(0, np.intp if f.name in integer else np.float64) for f in fields(cls)
+        }
+        return cls(**columns)
 
     def select(self, rows: NDArray[np.intp]) -> Self:
         return type(self)(**{f.name: getattr(self, f.name)[rows] for f in fields(self)})

@@ -1,0 +1,33 @@
+#!/bin/sh
+# Re-run the 67 simulated tuning nights of the shipped evidence model with this release
+# and train it again (docs/detection.md, "The evidence model"). Needs the `train` extra
+# (scikit-learn). About 75 minutes of simulation and tracking on 2 cores, then ~17 of
+# training. Nights run under the rules: the features do not depend on the decision.
+#
+#   scripts/train-evidence-model.sh OUT_DIR [firefly3d]
+#
+# writes OUT_DIR/g*.json (eval-detection), OUT_DIR/<night>/ (runs) and
+# OUT_DIR/evidence_trees.json (the model, cut 0.625 as shipped).
+set -eu
+out=${1:?usage: $0 OUT_DIR [firefly3d]}
+cli=${2:-firefly3d}
+mkdir -p "$out"
+echo '{"acceptance": {"evidence_model": null}}' > "$out/rules.json"
+nights() { # name, then eval-detection arguments
+    name=$1
+    shift
+    "$cli" eval-detection --quiet --params "$out/rules.json" --out "$out" \
+        --json "$out/g-$name.json" "$@"
+}
+hard="--scenario hard-clean --scenario hard-wind --scenario hard-all"
+nights 640-hard --width 640 $hard --scenario hard-swarm --scenario hard-species \
+    --scenario hard-noisy --seeds 12 13 14 15
+nights 640-easy --width 640 --scenario clean --scenario field --scenario foliage \
+    --scenario headlights --scenario twilight --scenario lights --seeds 12 13
+nights 640-60fps --width 640 --seconds 15 --sim-params '{"fps": 60}' $hard \
+    --scenario hard-species --scenario hard-noisy --seeds 14 15
+nights 1280 --width 1280 $hard --scenario hard-swarm --scenario hard-species \
+    --scenario hard-noisy --seeds 12 13
+nights 3840 --width 3840 --seconds 12 $hard --scenario hard-species --seeds 12 13
+nights 3840-noisy --width 3840 --seconds 12 --scenario hard-noisy --seeds 13
+"$cli" train-acceptance --runs "$out"/g-*.json --threshold 0.625 --out "$out/evidence_trees.json"
