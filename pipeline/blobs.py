@@ -269,15 +269,23 @@ def trough(image: NDArray[np.floating], idx: NDArray[np.intp], radius: int) -> N
     return np.minimum(lowest, image.ravel()[idx]).astype(np.float64) / image.ravel()[idx]
 
 
+def window_indices(
+    shape: tuple[int, int], idx: NDArray[np.intp], offsets: NDArray[np.intp]
+) -> NDArray[np.intp]:
+    """(N, K) flat indices of the pixels at `offsets` ``(dr, dc)`` from each flat index
+    `idx` of an image of `shape`: columns wrap at the 360° seam, rows beyond the poles
+    read the pole row."""
+    height, width = shape
+    rows, cols = np.divmod(idx, width)
+    dr, dc = offsets.T
+    return np.clip(rows[:, None] + dr, 0, height - 1) * width + (cols[:, None] + dc) % width
+
+
 def _around(
     image: NDArray[np.floating], idx: NDArray[np.intp], offsets: NDArray[np.intp]
 ) -> NDArray[np.floating]:
-    """(N, K) values of `image` at `offsets` ``(dr, dc)`` from each flat index (columns
-    wrap at the 360° seam, rows beyond the poles read the pole row)."""
-    height, width = image.shape
-    rows, cols = np.divmod(idx, width)
-    dr, dc = offsets.T
-    return image[np.clip(rows[:, None] + dr, 0, height - 1), (cols[:, None] + dc) % width]
+    """(N, K) values of `image` at `offsets` from each flat index (`window_indices`)."""
+    return image.ravel()[window_indices(image.shape, idx, offsets)]
 
 
 def split_at_peaks(

@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from pipeline.blobs import window_indices
 from pipeline.recurrence import BrightHistory
 
 #: The frames the current one is compared with, seconds before it.
@@ -89,14 +90,11 @@ def hollow_depth(
         return np.zeros(0)
     lags = (max(1, round(RECENT_S[0] * fps)), max(1, round(RECENT_S[1] * fps)))
     offsets, band = _geometry(radius, sigma)
-    rows, cols = np.divmod(idx, image.shape[1])
-    past = history.mean_before(k, lags, rows, cols, offsets)
+    pixels = window_indices(image.shape, idx, offsets)
+    past = history.mean_before(k, lags, pixels)
     if past is None:
         return np.full(n, np.nan)
-    height, width = image.shape
-    r = np.clip(rows[:, None] + offsets[:, 0], 0, height - 1)
-    c = (cols[:, None] + offsets[:, 1]) % width
     side = band.shape[1]
-    change = (image[r, c].astype(np.float32) - past).reshape(n, side, side)
+    change = (image.ravel()[pixels].astype(np.float32) - past).reshape(n, side, side)
     filtered = np.einsum("ij,njk,lk->nil", band, change, band, optimize=True)
     return filtered.reshape(n, -1).min(axis=1).astype(np.float64) / np.asarray(response, np.float64)

@@ -26,6 +26,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from pipeline.blobs import window_indices
 from pipeline.noise import SAMPLE_EVERY
 
 #: Fewer past samples than this in the window (the start of a video): no measurement.
@@ -68,15 +69,10 @@ class BrightHistory:
             self._index[slot] = k
 
     def mean_before(
-        self,
-        k: int,
-        lags: tuple[int, int],
-        rows: NDArray[np.intp],
-        cols: NDArray[np.intp],
-        offsets: NDArray[np.intp],
+        self, k: int, lags: tuple[int, int], pixels: NDArray[np.intp]
     ) -> NDArray[np.float32] | None:
         """Mean luminance of the kept frames ``lags[0]`` to ``lags[1]`` before frame `k`
-        around each pixel.
+        at `pixels`.
 
         Parameters
         ----------
@@ -84,11 +80,8 @@ class BrightHistory:
             Global index of the current frame.
         lags : (int, int)
             Nearest and farthest lag, frames (within the history's ``window_s``).
-        rows, cols : ndarray of int, shape (N,)
-            Pixels in the (binned) frame.
-        offsets : ndarray of int, shape (P, 2)
-            ``(dr, dc)`` read around each pixel (columns wrap at the 360° seam, rows
-            beyond the poles read the pole row).
+        pixels : ndarray of int, shape (N, P)
+            Flat indices in the (binned) frame (`pipeline.blobs.window_indices`).
 
         Returns
         -------
@@ -99,12 +92,8 @@ class BrightHistory:
         slots = np.flatnonzero((self._index >= 0) & (lag >= lags[0]) & (lag <= lags[1]))
         if len(slots) == 0:
             return None
-        height, width = self._frames.shape[1:]
-        r = np.clip(rows[:, None] + offsets[:, 0], 0, height - 1)
-        c = (cols[:, None] + offsets[:, 1]) % width
-        pixel = (r * width + c).ravel()
-        past = self._frames.reshape(len(self._index), -1)[slots[:, None], pixel]
-        return past.mean(axis=0, dtype=np.float32).reshape(len(rows), len(offsets))
+        past = self._frames.reshape(len(self._index), -1)[slots[:, None], pixels.ravel()]
+        return past.mean(axis=0, dtype=np.float32).reshape(pixels.shape)
 
     def recurrence(
         self, k: int, image: NDArray[np.uint8], rows: NDArray[np.intp], cols: NDArray[np.intp]
@@ -133,12 +122,9 @@ class BrightHistory:
         )
         if len(slots) < MIN_SAMPLES:
             return np.full(len(rows), np.nan, np.float32)
-        height, width = image.shape
-        r = np.clip(rows[:, None] + _NEIGHBOURS[:, 0], 0, height - 1)  # (N, 9)
-        c = (cols[:, None] + _NEIGHBOURS[:, 1]) % width
+        pixels = window_indices(image.shape, rows * image.shape[1] + cols, _NEIGHBOURS)
         # One flat gather: fancy indexing of three axes of the history costs 3 times more.
-        pixel = (r * width + c).ravel()
-        past = self._frames.reshape(len(self._index), -1)[slots[:, None], pixel]
+        past = self._frames.reshape(len(self._index), -1)[slots[:, None], pixels.ravel()]
         past = past.reshape(len(slots), len(rows), len(_NEIGHBOURS)).max(axis=2)  # (S, N)
-        level = image[r, c].max(axis=1).astype(np.float32) - np.float32(self._margin)
+        level = image.ravel()[pixels].max(axis=1).astype(np.float32) - np.float32(self._margin)
         return np.asarray((past >= level).mean(axis=0), np.float32)
