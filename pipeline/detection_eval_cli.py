@@ -53,7 +53,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--sim-params",
         type=Path,
         metavar="JSON",
-        help="JSON object of SimulationConfig fields applied to every simulated scenario",
+        help="JSON file of SimulationConfig fields applied to every simulated scenario",
     )
     source.add_argument(
         "--lossless-twin",

@@ -13,6 +13,7 @@ out=${1:?usage: $0 OUT_DIR [firefly3d]}
 cli=${2:-firefly3d}
 mkdir -p "$out"
 echo '{"acceptance": {"evidence_model": null}}' > "$out/rules.json"
+echo '{"fps": 60}' > "$out/fps60.json"
 nights() { # name, then eval-detection arguments
     name=$1
     shift
@@ -24,7 +25,7 @@ nights 640-hard --width 640 $hard --scenario hard-swarm --scenario hard-species 
     --scenario hard-noisy --seeds 12 13 14 15
 nights 640-easy --width 640 --scenario clean --scenario field --scenario foliage \
     --scenario headlights --scenario twilight --scenario lights --seeds 12 13
-nights 640-60fps --width 640 --seconds 15 --sim-params '{"fps": 60}' $hard \
+nights 640-60fps --width 640 --seconds 15 --sim-params "$out/fps60.json" $hard \
     --scenario hard-species --scenario hard-noisy --seeds 14 15
 nights 1280 --width 1280 $hard --scenario hard-swarm --scenario hard-species \
     --scenario hard-noisy --seeds 12 13
