@@ -340,19 +340,26 @@ def upsample(
 def subpixel_peak(
     image: NDArray[np.float32], peak: NDArray[np.intp], bin_px: int = 1
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Sub-pixel position of local maxima of a smooth, Gaussian-like image.
+    """Sub-pixel position of the maxima of a smooth, Gaussian-like image near `peak`.
 
     A Gaussian through the maximum and its two neighbours along each axis (the
     logarithm of the values is a parabola): exact for a Gaussian spot whatever its
     position in the pixel, so it has no pixel-locking bias, and it reads the matched
     filter's output, which has already integrated the whole spot.
 
+    The peaks come from the SNR, which divides the response by a noise level that
+    steps across a bright edge (the sky behind leaves), so a peak can sit a pixel off
+    the response's own maximum; each is first moved uphill on `image` (at most
+    `CLIMB_STEPS` pixels, kept only when it reaches a maximum of its 3 × 3
+    neighbourhood). Where a neighbour is not positive (a dark edge beside the spot) the
+    parabola goes through the values themselves.
+
     Parameters
     ----------
     image : ndarray of float32, shape (H, W)
         The matched-filter response (columns wrap at the 360° seam).
     peak : ndarray of int, shape (n,)
-        Flat indices ``v · W + u`` of local maxima.
+        Flat indices ``v · W + u`` of local maxima of the SNR.
     bin_px : int
         Bin side of `image`: its pixel ``(i, j)`` covers full-resolution pixels
         ``b·i .. b·i + b − 1``.
@@ -360,19 +367,22 @@ def subpixel_peak(
     Returns
     -------
     x, y : ndarray of float, shape (n,)
-        Positions in full-resolution pixels, ``x`` wrapped into ``[0, b · W)``. Where a
-        neighbour is not positive (at the noise floor), the offset along that axis is 0.
+        Positions in full-resolution pixels, ``x`` wrapped into ``[0, b · W)``; offsets
+        from the (moved) peak pixel are within ±0.5 pixel of `image`.
     """
     height, width = image.shape
-    rows, cols = np.divmod(peak, width)
+    rows, cols = np.divmod(_climb(image, np.asarray(peak, np.intp)), width)
     centre = image[rows, cols].astype(np.float64)
 
     def offset(before: NDArray[np.float64], after: NDArray[np.float64]) -> NDArray[np.float64]:
+        positive = (before > 0) & (after > 0) & (centre > 0)
         with np.errstate(divide="ignore", invalid="ignore"):
-            lb, lc, la = np.log(before), np.log(centre), np.log(after)
-            step = 0.5 * (lb - la) / (lb - 2 * lc + la)
-        usable = (before > 0) & (after > 0) & (centre > 0) & np.isfinite(step)
-        return np.where(usable, np.clip(step, -0.5, 0.5), 0.0)
+            lb, lc, la = (np.log(np.where(positive, v, 1.0)) for v in (before, centre, after))
+            b, c, a = (
+                np.where(positive, lv, v) for lv, v in ((lb, before), (lc, centre), (la, after))
+            )
+            step = 0.5 * (b - a) / (b - 2 * c + a)
+        return np.where(np.isfinite(step), np.clip(step, -0.5, 0.5), 0.0)
 
     left = image[rows, (cols - 1) % width].astype(np.float64)
     right = image[rows, (cols + 1) % width].astype(np.float64)
@@ -384,6 +394,26 @@ def subpixel_peak(
     x = np.mod((cols + dx + 0.5) * bin_px - 0.5, full_width)
     x[x >= full_width] -= full_width  # mod can round a tiny negative up to exactly W
     return x, (rows + dy + 0.5) * bin_px - 0.5
+
+
+#: Pixels a peak may move uphill on the response to reach its maximum (`subpixel_peak`).
+CLIMB_STEPS = 2
+
+
+def _climb(image: NDArray[np.floating], peak: NDArray[np.intp]) -> NDArray[np.intp]:
+    """Each peak moved to its largest 3 × 3 neighbour while that is larger, at most
+    `CLIMB_STEPS` times; a peak that has not then reached a maximum stays where it was
+    (a flash on the slope of a glow must not be walked into the glow)."""
+    window = _window(1)
+    at = peak
+    for _ in range(CLIMB_STEPS):
+        around = window_indices(image.shape, at, window)
+        values = image.ravel()[around]
+        best = values.argmax(axis=1)
+        higher = values[np.arange(len(at)), best] > image.ravel()[at]
+        at = np.where(higher, around[np.arange(len(at)), best], at)
+    top = image.ravel()[at] >= _around(image, at, window).max(axis=1, initial=-np.inf)
+    return np.where(top, at, peak)
 
 
 def measure(

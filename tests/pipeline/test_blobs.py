@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.blobs import PixelIndex, label, local_maxima, ring_max, trough
+from pipeline.blobs import PixelIndex, label, local_maxima, ring_max, subpixel_peak, trough
 
 
 def index_of(mask: np.ndarray, margin: int) -> tuple[PixelIndex, np.ndarray]:
@@ -105,3 +105,36 @@ def test_the_trough_is_the_lowest_value_around_a_peak_over_the_peak() -> None:
     image[:] = 3.0  # a window all as bright as the peak: 1
     assert trough(image, peaks[:1], 2)[0] == 1.0
     assert trough(image, np.zeros(0, np.intp), 2).shape == (0,)
+
+
+def gaussian_spot(shape: tuple[int, int], x0: float, y0: float, sigma: float = 1.2) -> np.ndarray:
+    rows, cols = np.mgrid[: shape[0], : shape[1]]
+    dx = (cols - x0 + shape[1] / 2) % shape[1] - shape[1] / 2  # wraps at the seam
+    return np.exp(-(dx**2 + (rows - y0) ** 2) / (2 * sigma**2)).astype(np.float32)
+
+
+def test_subpixel_peak_is_exact_for_a_gaussian_at_or_beside_the_given_pixel() -> None:
+    image = 40 * gaussian_spot((20, 30), 29.3, 9.8)  # across the seam
+    at = np.array([10 * 30 + 29, 9 * 30 + 0, 11 * 30 + 28])  # the maximum, 1 px off, 2 px off
+    x, y = subpixel_peak(image, at)
+    np.testing.assert_allclose(x, 29.3, atol=1e-3)
+    np.testing.assert_allclose(y, 9.8, atol=1e-3)
+
+
+def test_subpixel_peak_beside_a_dark_edge_is_fitted_not_left_on_the_pixel() -> None:
+    # A swaying edge leaves the foreground negative just beside the flash: the log of
+    # the values cannot be taken there, the parabola through them still can.
+    image = 40 * gaussian_spot((20, 30), 15.3, 9.7)
+    image[9, :] -= 60 * gaussian_spot((20, 30), 15.3, 9.7)[9, :] + 5
+    x, y = subpixel_peak(image, np.array([10 * 30 + 15]))
+    assert abs(x[0] - 15.3) < 0.01
+    assert y[0] != 10.0 and abs(y[0] - 10.0) <= 0.5
+
+
+def test_subpixel_peak_on_a_slope_is_not_walked_into_the_glow() -> None:
+    # A flash on the flank of a much brighter light: the response rises all the way to
+    # the light, so the peak stays where the SNR put it.
+    glow = 500 * gaussian_spot((40, 60), 10.0, 20.0, sigma=6.0)
+    x, y = subpixel_peak(glow, np.array([20 * 60 + 22]))
+    assert abs(x[0] - 22.0) <= 0.5
+    assert y[0] == 20.0
