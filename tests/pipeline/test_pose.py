@@ -379,6 +379,44 @@ def test_standard_errors_predict_the_errors_and_flag_weak_geometry() -> None:
     assert fit_warnings(firm, WIDTH, PoseParams()) == []
 
 
+def flashes_of_a_night(
+    rng: np.random.Generator, n_flashes: int, frames: int, misplaced_deg: float
+) -> tuple[Pose, CalibrationPairs]:
+    """Pairs of `n_flashes` flashes lit `frames` frames each, in frame order; each flash
+    misplaced in camera 1 by its own `misplaced_deg` (a spot on a swaying edge) plus
+    0.02° of grain a frame."""
+    truth, direction, b2 = horizon_scene(rng, n_flashes, elevation_deg=10.0)
+    shared = np.repeat(jitter(rng, direction, misplaced_deg), frames, axis=0)
+    b1 = jitter(rng, shared, 0.02)
+    return truth, CalibrationPairs(np.arange(len(b1)), b1, np.repeat(b2, frames, axis=0))
+
+
+def test_the_jackknife_sees_errors_a_flash_shares_across_its_frames() -> None:
+    rng = np.random.default_rng(3)
+    errors, jacobian, jackknife = [], [], []
+    for _ in range(40):
+        truth, pairs = flashes_of_a_night(rng, 25, 5, misplaced_deg=0.15)
+        est = estimate_pose(pairs)
+        errors.append(errors_deg(est.pose, truth)[0])
+        jacobian.append(est.stats["rotation_se_deg"])
+        jackknife.append(est.stats["rotation_jackknife_se_deg"])
+    rms = np.sqrt(np.mean(np.square(errors)))
+    # The Jacobian takes the 125 pairs as independent and promises a third of the error;
+    # leaving out whole stretches of the night measures it.
+    assert rms / np.median(jacobian) > 2.5
+    assert 0.5 < rms / np.median(jackknife) < 2.0
+    # A night whose few flashes are each misplaced by a pixel of a 640 px frame: the
+    # Jacobian alone would pass it, the jackknife flags it.
+    _, pairs = flashes_of_a_night(np.random.default_rng(5), 12, 10, misplaced_deg=0.5)
+    loose = estimate_pose(pairs)
+    assert loose.stats["rotation_se_deg"] < 0.3 < loose.stats["rotation_jackknife_se_deg"]
+    assert any("poorly determined" in w for w in fit_warnings(loose, WIDTH, PoseParams()))
+    # Too few pairs to leave blocks out: no jackknife, and the Jacobian decides alone.
+    _, b1, b2 = horizon_scene(rng, 15, elevation_deg=2.0)
+    few = estimate_pose(CalibrationPairs(np.arange(15), jitter(rng, b1, 0.05), b2))
+    assert np.isnan(few.stats["rotation_jackknife_se_deg"])
+
+
 def test_the_worst_axis_covariance_spreads_each_part_evenly() -> None:
     rng = np.random.default_rng(2)
     _, b1, b2 = horizon_scene(rng, 30, elevation_deg=3.0)
