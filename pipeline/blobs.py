@@ -404,15 +404,13 @@ def _climb(image: NDArray[np.floating], peak: NDArray[np.intp]) -> NDArray[np.in
     """Each peak moved to its largest 3 × 3 neighbour while that is larger, at most
     `CLIMB_STEPS` times; a peak that has not then reached a maximum stays where it was
     (a flash on the slope of a glow must not be walked into the glow)."""
-    window = _window(1)
+    flat, window, each = image.ravel(), _window(1), np.arange(len(peak))
     at = peak
     for _ in range(CLIMB_STEPS):
         around = window_indices(image.shape, at, window)
-        values = image.ravel()[around]
-        best = values.argmax(axis=1)
-        higher = values[np.arange(len(at)), best] > image.ravel()[at]
-        at = np.where(higher, around[np.arange(len(at)), best], at)
-    top = image.ravel()[at] >= _around(image, at, window).max(axis=1, initial=-np.inf)
+        best = around[each, flat[around].argmax(axis=1)]
+        at = np.where(flat[best] > flat[at], best, at)
+    top = flat[at] >= _around(image, at, window).max(axis=1, initial=-np.inf)
     return np.where(top, at, peak)
 
 
