@@ -75,6 +75,10 @@ COVERAGE_SDS = 2.0
 #: A false detection this close (equatorial pixels) to a true flash of its frame is
 #: a fragment of it (halo, streak split), not an independent false positive.
 NEAR_FLASH_PX = 5.0
+#: A missed flash-frame this many frames or fewer from a found frame of the same flash
+#: is counted as lost *beside* it (the rise or the fall of a flash that was seen):
+#: what a search guided by the found frames could still recover.
+BESIDE_FRAMES = 2
 
 
 # -- bins ---------------------------------------------------------------------------------
@@ -226,6 +230,60 @@ def detection_figures(
         if match.found.any()
         else None,
         "by_error_px": binned(match.error[match.found], [], ERROR_EDGES_PX),
+        **flash_event_figures(
+            flashes.flash_id[match.truth_rows],
+            flashes.in_camera(camera)[0][match.truth_rows],
+            snr,
+            match.found,
+        ),
+    }
+
+
+def flash_event_figures(
+    flash_id: NDArray[np.int64],
+    frame: NDArray[np.int64],
+    snr: NDArray[np.float64],
+    found: NDArray[np.bool_],
+) -> dict[str, Any]:
+    """Recall of whole flashes, and where the missed flash-frames lie along them.
+
+    A biologist counts flashes and times them; a flash lit for 5 frames and found in 3
+    is counted, its duration short. Figures, over the flash-frames of one camera:
+
+    - ``flash_recall_snr_ge5``: the flashes whose brightest frame is at least
+      `HEADLINE_SNR` with at least one frame found;
+    - ``n_missed_snr_ge5_beside_found``: the missed flash-frames of at least
+      `HEADLINE_SNR` within `BESIDE_FRAMES` frames of a found frame of the same flash
+      (its rise or fall), of ``n_truth_snr_ge5 - n_found_snr_ge5`` missed in all.
+
+    Parameters
+    ----------
+    flash_id, frame : ndarray of int64, shape (N,)
+        Per true flash-frame visible in the camera: its flash and its frame in the camera.
+    snr : ndarray of float64, shape (N,)
+        Its peak SNR against the sensor noise.
+    found : ndarray of bool, shape (N,)
+        Whether a detection matched it (`evaluate.match_detections`).
+    """
+    ids, flash = np.unique(flash_id, return_inverse=True)
+    peak = np.full(len(ids), -np.inf)
+    np.maximum.at(peak, flash, snr)
+    seen = np.bincount(flash, weights=found, minlength=len(ids)) > 0
+    strong = peak >= HEADLINE_SNR
+    # One integer key per (flash, frame): a found frame d frames away has key + d, and
+    # no key ± BESIDE_FRAMES reaches another flash's.
+    frame = frame - frame.min(initial=0)
+    key = flash * (int(frame.max(initial=0)) + BESIDE_FRAMES + 1) + frame
+    found_keys = key[found]
+    beside = np.zeros(len(key), dtype=bool)
+    for offset in range(1, BESIDE_FRAMES + 1):
+        beside |= np.isin(key + offset, found_keys) | np.isin(key - offset, found_keys)
+    missed = ~found & (snr >= HEADLINE_SNR)
+    return {
+        "n_flashes_snr_ge5": int(strong.sum()),
+        "n_flashes_found_snr_ge5": int((strong & seen).sum()),
+        "flash_recall_snr_ge5": ratio((strong & seen).sum(), strong.sum()),
+        "n_missed_snr_ge5_beside_found": int((missed & beside).sum()),
     }
 
 
@@ -536,6 +594,7 @@ _RATIOS = {
     "recall": ("n_found", "n_truth"),
     "recall_snr_ge5": ("n_found_snr_ge5", "n_truth_snr_ge5"),
     "recall_mf_snr_ge5": ("n_found_mf_snr_ge5", "n_truth_mf_snr_ge5"),
+    "flash_recall_snr_ge5": ("n_flashes_found_snr_ge5", "n_flashes_snr_ge5"),
     "recall_within_2pct": ("n_found_within_2pct", "n_truth"),
     "precision": ("n_true", None),  # denominator: n_detections or n_points
     "per_frame": ("n_detections", "n_frames"),
@@ -672,7 +731,8 @@ def format_table(rows: list[Row]) -> str:
 
     Columns: 2D recall of the accepted detections (all, at peak SNR ≥ 5, and at
     matched-filter SNR ≥ 5), the candidates' recall at SNR ≥ 5 (before acceptance),
-    accepted precision, candidates per frame, the share of flash-frames seen by both
+    the recall of whole flashes of peak SNR ≥ 5 (`flash_event_figures`), accepted
+    precision, candidates per frame, the share of flash-frames seen by both
     cameras that both detected (``2cam``: 3D recall with a perfect calibration), 3D
     recall (5 % of range; 2 % in brackets) and precision, the recall and precision of
     the stereo pairing whatever the range error (``pair``, `pair_figures`), the
@@ -683,7 +743,7 @@ def format_table(rows: list[Row]) -> str:
     """
     header = (
         f"{'night':<24} {'recall c1/c2':>12} {'SNR>=5 c1/c2':>12} {'mf>=5 c1/c2':>11} "
-        f"{'cand>=5 c1/c2':>13} "
+        f"{'cand>=5 c1/c2':>13} {'flash>=5 c1/c2':>14} "
         f"{'prec c1/c2':>10} {'cand/frame':>10} {'2cam':>4} {'3D rec':>6} {'(2%)':>6} "
         f"{'3D prec':>7} {'pair rec/prec':>13} {'sure: prec share':>16} {'cov':>4} "
         f"{'dk':>3} {'rot':>5}  3D recall by range 0-5/5-8/8-20/>=20 m"
@@ -701,6 +761,7 @@ def format_table(rows: list[Row]) -> str:
             f"{_pair(e, 'accepted', 'recall_snr_ge5'):>12} "
             f"{_pair(e, 'accepted', 'recall_mf_snr_ge5'):>11} "
             f"{_pair(e, 'candidates', 'recall_snr_ge5'):>13} "
+            f"{_pair(e, 'accepted', 'flash_recall_snr_ge5'):>14} "
             f"{_pair(e, 'accepted', 'precision'):>10} "
             f"{_pair(e, 'candidates', 'per_frame', 1):>10} "
             f"{_f(stereo and stereo['recall']):>4} "
@@ -798,6 +859,15 @@ def format_bins(name: str, entry: dict[str, Any]) -> str:
             found = sum(b["n"] for b in acc["by_error_px"])
             cells = [f"{b['label']}: {_f(ratio(b['n'], found))}" for b in acc["by_error_px"]]
             lines.append(f"  position error px {cam}  " + "   ".join(cells))
+    for cam in ("cam1", "cam2"):
+        acc = entry["cameras"][cam]["accepted"]
+        if acc is not None:
+            missed = acc["n_truth_snr_ge5"] - acc["n_found_snr_ge5"]
+            lines.append(
+                f"  missed >= 5 sigma {cam}  {missed}, of which "
+                f"{acc['n_missed_snr_ge5_beside_found']} within {BESIDE_FRAMES} frames "
+                "of a found frame of the same flash"
+            )
     for cam in ("cam1", "cam2"):
         acc = entry["cameras"][cam]["accepted"]
         cand = entry["cameras"][cam]["candidates"]

@@ -18,6 +18,7 @@ from pipeline.detection_eval import (
     cut_figures,
     detection_figures,
     finite,
+    flash_event_figures,
     pair_rows,
     point_figures,
     pool,
@@ -125,6 +126,7 @@ def test_detection_figures_on_hand_made_truth() -> None:
     assert figures["n_found"] == 3 and figures["recall"] == 0.75  # row 1 missed (3 px off)
     assert figures["n_truth_snr_ge5"] == 2 and figures["recall_snr_ge5"] == 1.0
     assert figures["n_truth_mf_snr_ge5"] == 2 and figures["recall_mf_snr_ge5"] == 0.5
+    assert figures["n_flashes_snr_ge5"] == 2 and figures["flash_recall_snr_ge5"] == 1.0
     mf = by_label(figures["by_mf_snr"])
     assert [(mf[k]["n"], mf[k]["found"]) for k in mf] == [(1, 1), (1, 1), (1, 0), (0, 0), (1, 1)]
     assert figures["n_detections"] == 6 and figures["n_true"] == 3
@@ -142,6 +144,22 @@ def test_detection_figures_on_hand_made_truth() -> None:
     errors = by_label(figures["by_error_px"])
     assert sum(b["n"] for b in errors.values()) == 3 and errors["0-0.1"]["n"] == 1
     assert errors["1-2"]["n"] >= 1 and errors["0.1-0.2"]["n"] == 0
+
+
+def test_flash_event_figures_count_whole_flashes_and_misses_beside_found_frames() -> None:
+    flash_id = np.array([7, 7, 7, 7, 7, 9, 9, 6, 4, 4, 5, 3, 3])
+    frame = np.array([10, 11, 12, 13, 14, 15, 16, 16, 3, 4, 20, -1, 0])
+    snr = np.array([3.0, 8, 12, 9, 6, 6, 4, 20, 2, 4, 30, 10, 7])
+    found = np.array([0, 1, 1, 0, 0, 0, 0, 1, 0, 0, 0, 1, 0], dtype=bool)
+    figures = flash_event_figures(flash_id, frame, snr, found)
+    # Flashes of peak >= 5: 7, 9, 6, 5, 3 (4 peaks at 4); found: 7, 6, 3.
+    assert figures["n_flashes_snr_ge5"] == 5 and figures["n_flashes_found_snr_ge5"] == 3
+    assert figures["flash_recall_snr_ge5"] == 0.6
+    # Missed >= 5: flash 7 at 13 and 14 (1 and 2 frames after 12), flash 3 at 0 (beside
+    # -1), flash 9 at 15 (beside flash 6's found frame 16, another flash) and flash 5.
+    assert figures["n_missed_snr_ge5_beside_found"] == 3
+    nothing = flash_event_figures(*(np.zeros(0, t) for t in (np.int64, np.int64, float, bool)))
+    assert nothing["n_flashes_snr_ge5"] == 0 and nothing["flash_recall_snr_ge5"] is None
 
 
 def test_stereo_figures_count_flashes_detected_by_both_cameras() -> None:
