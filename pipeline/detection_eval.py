@@ -248,7 +248,8 @@ def flash_event_figures(
     """Recall of whole flashes, and where the missed flash-frames lie along them.
 
     A biologist counts flashes and times them; a flash lit for 5 frames and found in 3
-    is counted, its duration short. Figures, over the flash-frames of one camera:
+    is counted, its duration short. Figures, over a set of flash-frames (those visible
+    in one camera, or in both for 3D):
 
     - ``flash_recall_snr_ge5``: the flashes whose brightest frame is at least
       `HEADLINE_SNR` with at least one frame found;
@@ -259,11 +260,11 @@ def flash_event_figures(
     Parameters
     ----------
     flash_id, frame : ndarray of int64, shape (N,)
-        Per true flash-frame visible in the camera: its flash and its frame in the camera.
+        Per true flash-frame: its flash and its frame (in one camera's numbering).
     snr : ndarray of float64, shape (N,)
         Its peak SNR against the sensor noise.
     found : ndarray of bool, shape (N,)
-        Whether a detection matched it (`evaluate.match_detections`).
+        Whether it was found (a matched detection, or a 3D point within tolerance).
     """
     ids, flash = np.unique(flash_id, return_inverse=True)
     peak = np.full(len(ids), -np.inf)
@@ -356,7 +357,8 @@ def point_figures(
     pair_row: NDArray[np.int64] | None = None,
 ) -> dict[str, Any]:
     """3D recall (within 5 % and 2 % of range), precision, and recall per range bin
-    (from camera 1) and per bin of the smaller of the two cameras' peak SNR; with the
+    (from camera 1) and per bin of the smaller of the two cameras' peak SNR, and of
+    whole flashes (`flash_event_figures`, on that smaller SNR); with the
     points' `range_sd` (metres), how well it describes their range errors
     (`uncertainty_figures`); with each point's `pair_rows`, the same figures for the
     *pairing* whatever the range error (`pair_figures`)."""
@@ -385,6 +387,7 @@ def point_figures(
             "by_range_m": binned(match.true_range, flags, RANGE_EDGES_M),
             "by_snr": binned(snr, flags, SNR_EDGES),
         }
+        | flash_event_figures(flashes.flash_id[rows], flashes.frame1[rows], snr, found)
         | uncertainty_figures(xyz, range_sd, match)
         | paired
     )
@@ -734,7 +737,8 @@ def format_table(rows: list[Row]) -> str:
     the recall of whole flashes of peak SNR ≥ 5 (`flash_event_figures`), accepted
     precision, candidates per frame, the share of flash-frames seen by both
     cameras that both detected (``2cam``: 3D recall with a perfect calibration), 3D
-    recall (5 % of range; 2 % in brackets) and precision, the recall and precision of
+    recall (5 % of range; 2 % in brackets) and precision, the 3D recall of whole flashes
+    of smaller peak SNR ≥ 5 (at least one frame within 5 %), the recall and precision of
     the stereo pairing whatever the range error (``pair``, `pair_figures`), the
     precision of the points whose range is sure within `SURE_RELATIVE_SD` with the share
     of points they are, the coverage of the range errors by twice the points' standard
@@ -745,7 +749,8 @@ def format_table(rows: list[Row]) -> str:
         f"{'night':<24} {'recall c1/c2':>12} {'SNR>=5 c1/c2':>12} {'mf>=5 c1/c2':>11} "
         f"{'cand>=5 c1/c2':>13} {'flash>=5 c1/c2':>14} "
         f"{'prec c1/c2':>10} {'cand/frame':>10} {'2cam':>4} {'3D rec':>6} {'(2%)':>6} "
-        f"{'3D prec':>7} {'pair rec/prec':>13} {'sure: prec share':>16} {'cov':>4} "
+        f"{'3D prec':>7} {'3D flash>=5':>11} {'pair rec/prec':>13} "
+        f"{'sure: prec share':>16} {'cov':>4} "
         f"{'dk':>3} {'rot':>5}  3D recall by range 0-5/5-8/8-20/>=20 m"
     )
     lines = [header, "-" * len(header)]
@@ -767,7 +772,8 @@ def format_table(rows: list[Row]) -> str:
             f"{_f(stereo and stereo['recall']):>4} "
             f"{_f(points and points['recall']):>6} "
             f"({_f(points and points['recall_within_2pct'])}) "
-            f"{_f(points and points['precision']):>7} {_pairing(points):>13} "
+            f"{_f(points and points['precision']):>7} "
+            f"{_f(points and points['flash_recall_snr_ge5']):>11} {_pairing(points):>13} "
             f"{_sure(points):>16} "
             f"{_f(points and points.get('coverage')):>4} "
             f"{'-' if delay is None else delay:>3} {_f(rotation, 1):>5}  "

@@ -203,6 +203,8 @@ def test_point_figures_on_hand_made_truth() -> None:
     assert rng["8-20"]["found"] == 0 and rng[">=20"]["found"] == 0
     snr = by_label(figures["by_snr"])  # min of both cameras' SNR: camera 1's here
     assert snr["0-3"]["n"] == 1 and snr[">=20"]["n"] == 1
+    # Whole flashes of smaller peak >= 5: rows 2 (no point) and 3 (20 % off).
+    assert figures["n_flashes_snr_ge5"] == 2 and figures["flash_recall_snr_ge5"] == 0.0
     assert "coverage" not in figures  # no standard deviations given
     assert "coverage" not in point_figures(xyz, frame, truth, np.array([0.1, np.nan, 3.0]))
 
