@@ -17,6 +17,10 @@ PROBE_JSON = "work/probe.json"
 CLOCK_JSON = "work/clock.json"
 SYNC_JSON = "work/sync.json"
 CALIBRATION_PAIRS_NPZ = "work/calibration_pairs.npz"
+#: The first pose, from the confident flashes (``calibration.json``'s layout): what
+#: acceptance matches the cameras with; the pose refitted on the accepted flashes is
+#: ``calibration.json`` (`pipeline.pose_refit`).
+POSE_JSON = "work/pose.json"
 POINTS_NPZ = "work/points.npz"
 CALIBRATION_JSON = "calibration.json"
 TRAJECTORIES_CSV = "trajectories.csv"

@@ -15,7 +15,7 @@ videos it needs, and where its function is. Three runners iterate the same table
 Adding a stage is one entry here and one function (``StageContext -> StageResult``)::
 
     probe ─▶ track (chunks × cameras) ─▶ merge (× cameras) ─▶ sync ─▶ pose ─▶ accept
-          ─▶ triangulate ─▶ link ─▶ patterns ─▶ report
+          ─▶ refit ─▶ triangulate ─▶ link ─▶ patterns ─▶ report
       └──▶ clock (the night's real time; needed from link on) ──┘
 
 File names in ``reads`` / ``writes`` are `pipeline.artifacts` templates: ``{camera}``
@@ -53,6 +53,7 @@ from pipeline.artifacts import (
     FLASHES_CSV,
     METRICS_DIR,
     POINTS_NPZ,
+    POSE_JSON,
     PROBE_JSON,
     REPORT_DIR,
     SYNC_JSON,
@@ -259,21 +260,29 @@ STAGES: tuple[Stage, ...] = (
         "pipeline.stages:pose",
         after=("sync",),
         reads=(PROBE_JSON, SYNC_JSON, CANDIDATES_NPZ, EVIDENCE_NPZ),
-        writes=(CALIBRATION_JSON, CALIBRATION_PAIRS_NPZ),
+        writes=(POSE_JSON, CALIBRATION_PAIRS_NPZ),
         description="relative pose of the cameras from frames with one confident flash each",
     ),
     Stage(
         "accept",
         "pipeline.stages:accept",
         after=("pose",),
-        reads=(PROBE_JSON, CALIBRATION_JSON, CANDIDATES_NPZ, EVIDENCE_NPZ),
+        reads=(PROBE_JSON, POSE_JSON, CANDIDATES_NPZ, EVIDENCE_NPZ),
         writes=(FLASHES_CSV, ACCEPTANCE_NPZ),
         description="accept the flashes from all the evidence, the other camera's included",
     ),
     Stage(
+        "refit",
+        "pipeline.stages:refit",
+        after=("accept",),
+        reads=(SYNC_JSON, POSE_JSON, FLASHES_CSV),
+        writes=(CALIBRATION_JSON,),
+        description="the pose fitted again on the stereo matches of every accepted flash",
+    ),
+    Stage(
         "triangulate",
         "pipeline.stages:triangulate",
-        after=("accept",),
+        after=("refit",),
         reads=(CALIBRATION_JSON, FLASHES_CSV),
         writes=(POINTS_NPZ,),
         description="match flashes between synchronised frames and triangulate them",

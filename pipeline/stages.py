@@ -33,6 +33,7 @@ from pipeline.artifacts import (
     FLASH_PATTERNS_CSV,
     FLASHES_CSV,
     POINTS_NPZ,
+    POSE_JSON,
     SUMMARY_JSON,
     SYNC_JSON,
     TRAJECTORIES_CSV,
@@ -42,10 +43,18 @@ from pipeline.clock import NightClock, night_clock
 from pipeline.detections import Detections
 from pipeline.evidence_features import stereo_matches
 from pipeline.evidence_model import acceptance_counts, evidence_model, weigh
+from pipeline.geometry import angle_between, rotation_angle
 from pipeline.graph import StageContext, StageResult, earlier_units, read_record
 from pipeline.jsonio import read_json, write_json
 from pipeline.params import AcceptanceParams, ClassifierParams, validate_separation
-from pipeline.pose import calibrate_pose, worst_axis_covariance
+from pipeline.pose import (
+    PoseError,
+    calibrate_pose,
+    fit_warnings,
+    median_residual_px,
+    worst_axis_covariance,
+)
+from pipeline.pose_refit import jackknife_scaled, refit_pose
 from pipeline.probe import LOW_BITS_PER_PIXEL, StereoProbe
 from pipeline.results import (
     Calibration,
@@ -327,8 +336,9 @@ def sync(ctx: StageContext) -> StageResult:
 def pose(ctx: StageContext) -> StageResult:
     """Relative pose from frames where each camera sees exactly one flash (or one begin).
 
-    Writes ``calibration.json`` (the delay from ``sync.json`` included); the camera
-    height, when known, is recorded there as metadata.
+    Writes the first pose, in ``calibration.json``'s layout, to ``work/pose.json`` (the
+    delay from ``sync.json`` included; the camera height, when known, as metadata):
+    acceptance matches the cameras with it, and `refit` fits the final one.
     """
     validate_separation(ctx.separation_m)
     probe = ctx.probe
@@ -353,7 +363,7 @@ def pose(ctx: StageContext) -> StageResult:
         covariance=estimate.covariance,
     )
     write_calibration(
-        ctx.path(CALIBRATION_JSON),
+        ctx.path(POSE_JSON),
         calibration,
         extra={
             "n_calibration_pairs": estimate.n_pairs,
@@ -388,7 +398,7 @@ def accept(ctx: StageContext) -> StageResult:
     and rejected by each kind of evidence.
     """
     validate_separation(ctx.separation_m)
-    calibration = read_calibration(ctx.path(CALIBRATION_JSON))
+    calibration = read_calibration(ctx.path(POSE_JSON))
     candidates, evidence = _candidates(ctx)
     params = ctx.params.acceptance
     model, note = evidence_model(params, ctx.params.classifier, ctx.params.tracking)
@@ -438,6 +448,98 @@ def accept(ctx: StageContext) -> StageResult:
         np.savez_compressed(npz, probability=p, accepted=keep, matched=stereo)
         metrics[f"cam{camera}"] = acceptance_counts(ev.verdict, keep, stereo)
     return StageResult(metrics=metrics, warnings=[note] if note else [])
+
+
+def refit(ctx: StageContext) -> StageResult:
+    """The pose fitted again on the stereo matches of the accepted flashes
+    (`pipeline.pose_refit`): writes ``calibration.json``.
+
+    The first pose's fit is described there under ``first_pose`` and the refit under
+    ``refit``. Where the refit is switched off, or the matches are too few or do not
+    agree (a warning then), the first pose is the calibration.
+    """
+    validate_separation(ctx.separation_m)
+    first = read_json(ctx.path(POSE_JSON))
+    calibration = read_calibration(ctx.path(POSE_JSON))
+    params = ctx.params.pose
+    fit = {key: first[key] for key in _FIT_KEYS}
+    warnings: list[str] = []
+    refitted: dict[str, Any] | None = None
+    if params.refit_from_accepted:
+        det1, det2 = _accepted(ctx)
+        try:
+            estimate, _ = refit_pose(
+                det1,
+                det2,
+                calibration.delay_frames,
+                calibration.pose,
+                calibration.width,
+                ctx.separation_m,
+                ctx.params.triangulation,
+                params,
+            )
+        except PoseError as exc:
+            warnings.append(f"the pose of the confident flashes is kept, not refitted: {exc}")
+        else:
+            warnings = fit_warnings(estimate, calibration.width, params)
+            covariance = jackknife_scaled(estimate)
+            refitted = {
+                "min_snr": params.refit_min_snr,
+                "rotation_change_deg": float(
+                    np.degrees(rotation_angle(calibration.pose.rotation, estimate.pose.rotation))
+                ),
+                "translation_change_deg": float(
+                    np.degrees(
+                        angle_between(calibration.pose.translation, estimate.pose.translation)
+                    )
+                ),
+                "median_residual_px": median_residual_px(estimate, calibration.width),
+                "covariance_scale": float(covariance[0, 0] / estimate.covariance[0, 0]),
+            }
+            calibration = replace(calibration, pose=estimate.pose, covariance=covariance)
+            fit = {
+                "n_calibration_pairs": estimate.n_pairs,
+                "n_calibration_inliers": estimate.n_inliers,
+                "residuals": estimate.stats,
+            }
+    # The first fit's warnings are about the first pose; the delay's stay either way.
+    kept = read_json(ctx.path(SYNC_JSON)).get("warnings", []) if refitted else first["warnings"]
+    write_calibration(
+        ctx.path(CALIBRATION_JSON),
+        calibration,
+        extra={
+            "n_calibration_pairs": fit["n_calibration_pairs"],
+            "n_calibration_inliers": fit["n_calibration_inliers"],
+            "residuals": fit["residuals"],
+            "camera_height_m": first.get("camera_height_m"),
+            "first_pose": {
+                "rotation": first["rotation"],
+                "translation": first["translation"],
+                **{key: first[key] for key in _FIT_KEYS},
+            },
+            "refit": refitted,
+            "warnings": [*kept, *warnings],
+        },
+    )
+    metrics = {
+        "n_calibration_pairs": fit["n_calibration_pairs"],
+        "n_calibration_inliers": fit["n_calibration_inliers"],
+        "rotation": calibration.pose.rotation.tolist(),
+        "translation": calibration.pose.translation.tolist(),
+        "residuals": fit["residuals"],
+        "refit": refitted,
+    }
+    return StageResult(metrics=metrics, warnings=warnings)
+
+
+#: What ``work/pose.json`` says of the first fit, kept under ``first_pose``.
+_FIT_KEYS = (
+    "n_calibration_pairs",
+    "n_calibration_inliers",
+    "residuals",
+    "calibration_min_snr",
+    "pose_fits",
+)
 
 
 def triangulate(ctx: StageContext) -> StageResult:

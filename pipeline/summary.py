@@ -57,8 +57,8 @@ def summarise(records: Mapping[Unit, StageResult], params: ProcessParams) -> dic
         counts[f"refined_cam{camera}"] = value(f"merge_cam{camera}", "n_refined_positions")
         counts[f"flashes_cam{camera}"] = (value("accept", f"cam{camera}") or {}).get("accepted")
     counts.update(
-        calibration_pairs=value("pose", "n_calibration_pairs"),
-        calibration_inliers=value("pose", "n_calibration_inliers"),
+        calibration_pairs=value("refit", "n_calibration_pairs"),
+        calibration_inliers=value("refit", "n_calibration_inliers"),
         points=value("link", "n_points"),
         points_sure=value("triangulate", "n_points_sure"),
         streaks=value("link", "n_streaks"),
@@ -78,9 +78,10 @@ def summarise(records: Mapping[Unit, StageResult], params: ProcessParams) -> dic
         "delay_set_aside": {
             f"cam{camera}": value("sync", f"frames_set_aside_cam{camera}") for camera in CAMERAS
         },
-        "rotation": value("pose", "rotation"),
-        "translation": value("pose", "translation"),
-        "residuals": value("pose", "residuals") or {},
+        "rotation": value("refit", "rotation"),
+        "translation": value("refit", "translation"),
+        "residuals": value("refit", "residuals") or {},
+        "pose_refit": value("refit", "refit"),
         "tracking": tracking,
         "recording": stage_metrics("probe"),
         "acceptance": stage_metrics("accept"),

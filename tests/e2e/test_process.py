@@ -208,21 +208,27 @@ def test_outputs_follow_the_contract(simulated, tmp_path) -> None:
         assert key in calibration
     rotation = np.array(calibration["rotation"])
     np.testing.assert_allclose(rotation @ rotation.T, np.eye(3), atol=1e-9)
-    # A clean night keeps its first fit; the rotation's standard error is small and the
-    # actual error within a few of it.
-    assert calibration["calibration_min_snr"] is None and len(calibration["pose_fits"]) == 1
-    standard_error = calibration["residuals"]["rotation_se_deg"]
+    # A clean night keeps its first fit from the confident flashes, and the pose is then
+    # refitted on every stereo match of the accepted ones.
+    first = calibration["first_pose"]
+    assert first["calibration_min_snr"] is None and len(first["pose_fits"]) == 1
+    refit = calibration["refit"]
+    assert calibration["n_calibration_pairs"] > first["n_calibration_pairs"]
+    assert refit["rotation_change_deg"] < 0.1 and refit["covariance_scale"] >= 1
+    # The covariance is the Jacobian's, scaled where the jackknife sees larger errors;
+    # the actual error is within a few of the standard error it gives.
+    covariance = np.array(calibration["pose_covariance"])
+    assert covariance.shape == (6, 6) and np.allclose(covariance, covariance.T)
+    scale = np.sqrt(refit["covariance_scale"])
+    standard_error = calibration["residuals"]["rotation_se_deg"] * scale
     error = np.degrees(rotation_angle(rotation, recording.truth.pose.rotation))
     assert 0 < standard_error < 0.1 and error < 4 * standard_error, (error, standard_error)
     assert np.linalg.norm(calibration["translation"]) == pytest.approx(1.0)
-    # So is the baseline's direction's, and the covariance both come from is written out.
-    translation_se = calibration["residuals"]["translation_se_deg"]
+    translation_se = calibration["residuals"]["translation_se_deg"] * scale
     translation_error = np.degrees(
         angle_between(calibration["translation"], recording.truth.pose.translation)
     )
     assert 0 < translation_se < 0.3 and translation_error < 4 * translation_se
-    covariance = np.array(calibration["pose_covariance"])
-    assert covariance.shape == (6, 6) and np.allclose(covariance, covariance.T)
     assert np.degrees(np.sqrt(np.linalg.eigvalsh(covariance[3:, 3:]).max())) == pytest.approx(
         translation_se
     )
@@ -245,7 +251,10 @@ def test_outputs_follow_the_contract(simulated, tmp_path) -> None:
     ]
     summary = json.loads((out / artifacts.SUMMARY_JSON).read_text())
     assert summary["counts"]["points"] == len(table["frame"])
-    assert {"sync", "pose", "triangulate", "link", "track_cam1"} <= set(summary["timings_s"])
+    assert {"sync", "pose", "refit", "triangulate", "link", "track_cam1"} <= set(
+        summary["timings_s"]
+    )
+    assert summary["pose_refit"] == refit
 
 
 def test_reconstruct_from_detections_equals_process(simulated, tmp_path) -> None:

@@ -41,6 +41,7 @@ def test_plan_leaves_chunks_until_the_probe_is_known() -> None:
         "sync",
         "pose",
         "accept",
+        "refit",
         "triangulate",
         "clock",
         "link",

@@ -40,10 +40,21 @@ def test_summary_gathers_counts_calibration_tracking_warnings_and_timings() -> N
                 "n_calibration_pairs": 30,
                 "n_calibration_inliers": 28,
                 "rotation": [[1, 0, 0], [0, 1, 0], [0, 0, 1]],
-                "translation": [0, 1, 0],
-                "residuals": {"median_deg": 0.01},
+                "translation": [0, 0.99, 0.14],
+                "residuals": {"median_deg": 0.02},
             },
             ["few inliers"],
+        ),
+        # The calibration is the refit's, from the accepted flashes' stereo matches.
+        Unit("refit"): StageResult(
+            {
+                "n_calibration_pairs": 120,
+                "n_calibration_inliers": 110,
+                "rotation": [[1, 0, 0], [0, 1, 0], [0, 0, 1]],
+                "translation": [0, 1, 0],
+                "residuals": {"median_deg": 0.01},
+                "refit": {"rotation_change_deg": 0.4},
+            }
         ),
     }
     summary = summarise(records, ProcessParams())
@@ -54,8 +65,8 @@ def test_summary_gathers_counts_calibration_tracking_warnings_and_timings() -> N
         "candidates_cam2": None,
         "refined_cam2": None,
         "flashes_cam2": 47,
-        "calibration_pairs": 30,
-        "calibration_inliers": 28,
+        "calibration_pairs": 120,
+        "calibration_inliers": 110,
         "points": 40,
         "points_sure": 31,
         "streaks": 9,
@@ -64,6 +75,7 @@ def test_summary_gathers_counts_calibration_tracking_warnings_and_timings() -> N
     assert (summary["delay_frames"], summary["delay_confidence"]) == (-4, 0.9)
     assert summary["delay_set_aside"] == {"cam1": 12, "cam2": 13}
     assert summary["translation"] == [0, 1, 0] and summary["residuals"] == {"median_deg": 0.01}
+    assert summary["pose_refit"] == {"rotation_change_deg": 0.4}
     assert summary["tracking"] == {"cam1": tracking}
     assert summary["acceptance"]["cam1"] == {"accepted": 52, "accepted_stereo": 4}
     assert summary["recording"] == {"width": 640, "bits_per_pixel_cam1": 0.05}

@@ -114,7 +114,7 @@ def team_name(service: Service, token: str) -> str:
 def check_job_page(page: Page, team: str, reference: Path) -> None:
     page.wait_for_selector("#job-status.status-succeeded", timeout=240_000)
     rows = page.locator("#stages tbody tr")
-    assert rows.count() == 19  # 11 stages + 4 tracking chunks per camera
+    assert rows.count() == 20  # 12 stages + 4 tracking chunks per camera
     assert set(page.locator("#stages tbody tr td:nth-child(2)").all_inner_texts()) == {"succeeded"}
     assert page.inner_text("#job-title") == f"{NIGHT['site']}, {NIGHT['date']} — {team}"
 

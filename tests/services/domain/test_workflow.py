@@ -101,7 +101,7 @@ def test_stages_run_in_dependency_order(
     broker = Broker()
     call(sessions, workflow.submit, storage, broker, job_id)
     assert broker.take() == ["probe"]
-    assert Counter(statuses(sessions, job_id).values()) == {"queued": 1, "pending": 10}
+    assert Counter(statuses(sessions, job_id).values()) == {"queued": 1, "pending": 11}
 
     finish(sessions, job_id, ["probe"])
     call(sessions, workflow.advance, storage, broker, job_id)
@@ -123,7 +123,8 @@ def test_stages_run_in_dependency_order(
         ("merge/cam2", "sync"),
         ("sync", "pose"),
         ("pose", "accept"),
-        ("accept", "triangulate"),
+        ("accept", "refit"),
+        ("refit", "triangulate"),
         ("triangulate", "link"),
         ("link", "patterns"),
         ("patterns", "report"),
@@ -243,7 +244,7 @@ def test_rerun_reuses_earlier_stages(
         assert job.status == "queued" and job.error is None
         assert [a.name for a in job.artifacts] == ["work/sync.json"]
     for key, (attempt, status) in before.items():
-        if key in ("pose", "accept", "triangulate", "clock", "link", "patterns", "report"):
+        if key in ("pose", "accept", "refit", "triangulate", "clock", "link", "patterns", "report"):
             assert after[key] == (attempt, "queued" if key in ("pose", "clock") else "pending")
         else:
             assert after[key] == (attempt, status) == (1, "succeeded")
