@@ -597,6 +597,20 @@ def median_residual_px(estimate: PoseEstimate, width: int) -> float:
     return estimate.stats.get("median_deg", 0.0) * width / 360.0
 
 
+def rotation_se_deg(estimate: PoseEstimate) -> float:
+    """The rotation's standard error in degrees: the larger of the Jacobian's and the
+    block jackknife's (the jackknife sees errors that flashes share across their frames,
+    the Jacobian a handful of pairs that cannot constrain an axis)."""
+    return float(
+        np.nanmax(
+            [
+                estimate.stats.get("rotation_se_deg", 0.0),
+                estimate.stats.get("rotation_jackknife_se_deg", np.nan),
+            ]
+        )
+    )
+
+
 def fit_warnings(estimate: PoseEstimate, width: int, params: PoseParams) -> list[str]:
     """Warnings on how well the pose fits its inliers, in pixels of angle of a frame
     `width` pixels wide (a residual is only small or large against the pixel)."""
@@ -609,14 +623,7 @@ def fit_warnings(estimate: PoseEstimate, width: int, params: PoseParams) -> list
             "flashes may include artifacts (try a higher acceptance.confident_snr or "
             "classifier.threshold)"
         )
-    # The larger of the two: the jackknife sees errors that flashes share across their
-    # frames, the Jacobian a handful of pairs that cannot constrain an axis.
-    se = np.nanmax(
-        [
-            estimate.stats.get("rotation_se_deg", 0.0),
-            estimate.stats.get("rotation_jackknife_se_deg", np.nan),
-        ]
-    )
+    se = rotation_se_deg(estimate)
     if se > params.max_rotation_se_deg:
         warnings.append(
             f"the pose is poorly determined (rotation standard error {se:.2f}°, good fits "
@@ -666,9 +673,10 @@ def calibrate_pose(
     the other camera and can pull the fit into a wrong pose that fits its pairs poorly
     (`fit_warnings`) or keeps few inliers. Such a fit is refitted from the flashes at or
     above each SNR of ``params.refit_snr`` in turn: the first fit without warnings is
-    kept, else the one with the fewest, then the smallest median residual (its warnings
-    kept). A fit that fails outright (too few pairs agree: on a grainy night speckle
-    passes as confident flashes) is refitted from the brighter flashes in the same way.
+    kept, else the one with the fewest, then the smallest rotation standard error
+    (`rotation_se_deg`), then the smallest median residual (its warnings kept). A fit
+    that fails outright (too few pairs agree: on a grainy night speckle passes as
+    confident flashes) is refitted from the brighter flashes in the same way.
 
     Parameters
     ----------
@@ -729,9 +737,12 @@ def calibrate_pose(
     return best
 
 
-def _doubt(fit: Calibrated, width: int) -> tuple[int, float]:
-    """Order of preference among fits with warnings: fewer warnings, then smaller residual."""
-    return len(fit.warnings), median_residual_px(fit.estimate, width)
+def _doubt(fit: Calibrated, width: int) -> tuple[int, float, float]:
+    """Order of preference among fits with warnings: fewer warnings, then the smaller
+    rotation standard error, then the smaller residual. Not the residual first: a fit of
+    a dozen bright pairs fits them closely whatever the pose (held-out hard-all s305:
+    13 inliers to 0.02 px, 71° off, against 39 inliers, 0.29° off)."""
+    return len(fit.warnings), rotation_se_deg(fit.estimate), median_residual_px(fit.estimate, width)
 
 
 def _describe(values: FloatArray, unit: str) -> dict[str, float]:

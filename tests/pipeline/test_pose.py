@@ -333,8 +333,10 @@ def test_a_clean_night_keeps_every_flash_and_a_hopeless_one_keeps_its_best_fit()
     poor = calibrate_pose(*blurred, 0, WIDTH)
     assert any("fits its calibration pairs poorly" in w for w in poor.warnings)
     assert len(poor.tried) == 4  # every floor tried, none fits well
+    # Each warns alike, so the fit its pairs determine best is kept (all 300 pairs), not
+    # the one whose fewer bright pairs happen to fit closest.
     residuals = [t["median_residual_px"] for t in poor.tried]
-    assert poor.tried[residuals.index(min(residuals))]["min_snr"] == poor.min_snr
+    assert poor.min_snr is None and residuals[0] > min(residuals)
 
 
 def horizon_scene(
