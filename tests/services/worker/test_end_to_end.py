@@ -66,7 +66,7 @@ def check_same_graph_and_summary(service: Service, token: str, job: dict, refere
         p.relative_to(reference).as_posix()
         for p in [*reference.glob("work/metrics/*.json"), *reference.glob("work/tracking/*/*.json")]
     }
-    assert by_service == by_cli and len(by_cli) == 19  # probe, 8 chunks, 2 merges, 8 more
+    assert by_service == by_cli and len(by_cli) == 20  # probe, 8 chunks, 2 merges, 9 more
     cli_summary = json.loads((reference / SUMMARY_JSON).read_text())
     for key in (
         "counts",

@@ -115,7 +115,7 @@ def test_killed_worker_machine_is_recovered_within_the_stall_limit(
     assert done["status"] == "succeeded", done["error"]
     assert recovered_s < STALL_LIMIT_S + 60, recovered_s
     rows = stage_rows(service, job["id"])
-    assert len({s.key for s in rows}) == len(rows) == 15  # 11 + 2 chunks per camera
+    assert len({s.key for s in rows}) == len(rows) == 16  # 12 + 2 chunks per camera
     for stage in rows:
         assert stage.status == "succeeded"
         assert stage.attempt == (2 if stage.key in killed else 1), stage.key
@@ -219,7 +219,7 @@ def test_upload_corrupted_in_transit_fails_probe_with_checksums(
     assert failed["status"] == "failed"
     assert failed["error"].startswith("probe failed: camera 1 chapter 0")
     assert "SHA-256" in failed["error"] and job["files"][0]["sha256"] in failed["error"]
-    assert [s["status"] for s in failed["stages"] if s["name"] != "probe"] == ["cancelled"] * 10
+    assert [s["status"] for s in failed["stages"] if s["name"] != "probe"] == ["cancelled"] * 11
 
 
 def test_cancel_stops_a_running_job(
