@@ -462,7 +462,7 @@ def refit(ctx: StageContext) -> StageResult:
     first = read_json(ctx.path(POSE_JSON))
     calibration = read_calibration(ctx.path(POSE_JSON))
     params = ctx.params.pose
-    fit = {key: first[key] for key in _FIT_KEYS}
+    fit = {key: first[key] for key in _FIT}
     warnings: list[str] = []
     refitted: dict[str, Any] | None = None
     if params.refit_from_accepted:
@@ -508,38 +508,26 @@ def refit(ctx: StageContext) -> StageResult:
         ctx.path(CALIBRATION_JSON),
         calibration,
         extra={
-            "n_calibration_pairs": fit["n_calibration_pairs"],
-            "n_calibration_inliers": fit["n_calibration_inliers"],
-            "residuals": fit["residuals"],
+            **fit,
             "camera_height_m": first.get("camera_height_m"),
-            "first_pose": {
-                "rotation": first["rotation"],
-                "translation": first["translation"],
-                **{key: first[key] for key in _FIT_KEYS},
-            },
+            "first_pose": {key: first[key] for key in _FIRST_POSE},
             "refit": refitted,
             "warnings": [*kept, *warnings],
         },
     )
     metrics = {
-        "n_calibration_pairs": fit["n_calibration_pairs"],
-        "n_calibration_inliers": fit["n_calibration_inliers"],
+        **fit,
         "rotation": calibration.pose.rotation.tolist(),
         "translation": calibration.pose.translation.tolist(),
-        "residuals": fit["residuals"],
         "refit": refitted,
     }
     return StageResult(metrics=metrics, warnings=warnings)
 
 
-#: What ``work/pose.json`` says of the first fit, kept under ``first_pose``.
-_FIT_KEYS = (
-    "n_calibration_pairs",
-    "n_calibration_inliers",
-    "residuals",
-    "calibration_min_snr",
-    "pose_fits",
-)
+#: How well a pose fits its pairs, in ``calibration.json`` (the final fit's).
+_FIT = ("n_calibration_pairs", "n_calibration_inliers", "residuals")
+#: What ``work/pose.json`` says of the first pose, kept under ``first_pose``.
+_FIRST_POSE = ("rotation", "translation", *_FIT, "calibration_min_snr", "pose_fits")
 
 
 def triangulate(ctx: StageContext) -> StageResult:
