@@ -35,7 +35,8 @@ def summarise(records: Mapping[Unit, StageResult], params: ProcessParams) -> dic
         codecs and bits per pixel per camera), ``tracking`` (per camera), ``acceptance`` (per
         camera: candidates accepted and rejected by each kind of evidence), ``clock`` (when
         camera 1's frame 0 was recorded, UTC and local, and the sunset; `pipeline.clock`),
-        ``patterns`` (the night's flash-pattern figures; `pipeline.patterns`), ``warnings``,
+        ``patterns`` (the night's flash-pattern figures; `pipeline.patterns`), ``warnings``
+        (every unit's, in pipeline order, but the first pose's once the refit replaced it),
         ``timings_s`` (per unit; ``track_cam<c>`` = the camera's tracking time summed
         over its chunks) and ``parameters``.
     """
@@ -87,7 +88,12 @@ def summarise(records: Mapping[Unit, StageResult], params: ProcessParams) -> dic
         "acceptance": stage_metrics("accept"),
         "clock": stage_metrics("clock"),
         "patterns": value("patterns", "night"),
-        "warnings": [w for _, result in ordered for w in result.warnings],
+        "warnings": [
+            w
+            for unit, result in ordered
+            if not (unit.slug == "pose" and value("refit", "refit"))
+            for w in result.warnings
+        ],
         "timings_s": timings,
         "parameters": params.model_dump(mode="json"),
     }

@@ -79,14 +79,13 @@ def test_summary_gathers_counts_calibration_tracking_warnings_and_timings() -> N
     assert summary["tracking"] == {"cam1": tracking}
     assert summary["acceptance"]["cam1"] == {"accepted": 52, "accepted_stereo": 4}
     assert summary["recording"] == {"width": 640, "bits_per_pixel_cam1": 0.05}
-    # in pipeline order
-    assert summary["warnings"] == [
-        "camera 1: encoded at 0.050 bit per pixel",
-        "low confidence",
-        "few inliers",
-    ]
+    # In pipeline order; the first pose's warning is gone with the pose it was about.
+    assert summary["warnings"] == ["camera 1: encoded at 0.050 bit per pixel", "low confidence"]
     assert summary["timings_s"]["track_cam1"] == 3.0 and summary["timings_s"]["link"] == 0.1
     assert summary["parameters"] == ProcessParams().model_dump(mode="json")
+    # Where the first pose was kept, its warning stands.
+    records[Unit("refit")] = StageResult({**records[Unit("refit")].metrics, "refit": None})
+    assert "few inliers" in summarise(records, ProcessParams())["warnings"]
 
 
 def test_summary_of_a_run_that_has_not_started_is_empty_but_complete() -> None:
