@@ -11,7 +11,8 @@ known, every frame's flashes can be matched between the cameras within the
 triangulation's gates (`pipeline.triangulate.triangulate`): 3–5 times the pairs, from
 every firefly in view. The pose is fitted again, from scratch and with the same robust
 estimator (`pipeline.pose.estimate_pose`), on the matches whose two flashes both reach
-``PoseParams.refit_min_snr`` (faint flashes carry the heavy tail of position errors).
+``PoseParams.refit_min_snr`` (`stereo_match_pairs`; faint flashes carry the heavy tail of
+position errors).
 
 Its covariance is the Jacobian's, scaled up so that the rotation's standard error is
 the block jackknife's where that is larger (`jackknife_scaled`): the matches of one
@@ -25,8 +26,8 @@ from numpy.typing import NDArray
 
 from pipeline.detections import Detections
 from pipeline.geometry import Pose, pixel_to_bearing
-from pipeline.params import PoseParams, TriangulationParams
-from pipeline.pose import CalibrationPairs, PoseEstimate, estimate_pose
+from pipeline.params import TriangulationParams
+from pipeline.pose import CalibrationPairs, PoseEstimate
 from pipeline.triangulate import triangulate
 
 FloatArray = NDArray[np.float64]
@@ -78,30 +79,6 @@ def stereo_match_pairs(
         bearing1=pixel_to_bearing(det1.x[i1], det1.y[i1], width),
         bearing2=pixel_to_bearing(det2.x[i2], det2.y[i2], width),
     )
-
-
-def refit_pose(
-    det1: Detections,
-    det2: Detections,
-    delay_frames: int,
-    pose: Pose,
-    width: int,
-    separation_m: float,
-    triangulation: TriangulationParams,
-    params: PoseParams,
-) -> tuple[PoseEstimate, CalibrationPairs]:
-    """The pose fitted on the stereo matches of the accepted flashes (`stereo_match_pairs`
-    at ``params.refit_min_snr``), and those pairs.
-
-    Raises
-    ------
-    PoseError
-        If the matches are too few, or too few agree (`pipeline.pose.estimate_pose`).
-    """
-    pairs = stereo_match_pairs(
-        det1, det2, delay_frames, pose, width, separation_m, triangulation, params.refit_min_snr
-    )
-    return estimate_pose(pairs, params), pairs
 
 
 def jackknife_scaled(estimate: PoseEstimate) -> FloatArray:

@@ -50,11 +50,12 @@ from pipeline.params import AcceptanceParams, ClassifierParams, validate_separat
 from pipeline.pose import (
     PoseError,
     calibrate_pose,
+    estimate_pose,
     fit_warnings,
     median_residual_px,
     worst_axis_covariance,
 )
-from pipeline.pose_refit import jackknife_scaled, refit_pose
+from pipeline.pose_refit import jackknife_scaled, stereo_match_pairs
 from pipeline.probe import LOW_BITS_PER_PIXEL, StereoProbe
 from pipeline.results import (
     Calibration,
@@ -468,7 +469,7 @@ def refit(ctx: StageContext) -> StageResult:
     if params.refit_from_accepted:
         det1, det2 = _accepted(ctx)
         try:
-            estimate, _ = refit_pose(
+            pairs = stereo_match_pairs(
                 det1,
                 det2,
                 calibration.delay_frames,
@@ -476,8 +477,9 @@ def refit(ctx: StageContext) -> StageResult:
                 calibration.width,
                 ctx.separation_m,
                 ctx.params.triangulation,
-                params,
+                params.refit_min_snr,
             )
+            estimate = estimate_pose(pairs, params)
         except PoseError as exc:
             warnings.append(f"the pose of the confident flashes is kept, not refitted: {exc}")
         else:

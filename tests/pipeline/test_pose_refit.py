@@ -14,7 +14,8 @@ from pipeline.detections import Detections
 from pipeline.geometry import Pose, bearing_to_pixel, rotation_angle
 from pipeline.graph import StageContext, Unit
 from pipeline.params import PoseParams, ProcessParams, TriangulationParams
-from pipeline.pose_refit import jackknife_scaled, refit_pose
+from pipeline.pose import CalibrationPairs, PoseEstimate, estimate_pose
+from pipeline.pose_refit import jackknife_scaled, stereo_match_pairs
 from pipeline.results import Calibration, write_calibration
 from pipeline.stages import refit
 from tests.pipeline.test_pose import jitter
@@ -61,6 +62,16 @@ def night(
     )
 
 
+def refitted(
+    det1: Detections, det2: Detections, min_snr: float
+) -> tuple[PoseEstimate, CalibrationPairs]:
+    """The pose fitted on the stereo matches made under `FIRST`, and those matches."""
+    pairs = stereo_match_pairs(
+        det1, det2, 0, FIRST, WIDTH, SEPARATION, TriangulationParams(), min_snr
+    )
+    return estimate_pose(pairs), pairs
+
+
 def rotation_error_deg(pose: Pose) -> float:
     return float(np.degrees(rotation_angle(pose.rotation, TRUTH.rotation)))
 
@@ -68,32 +79,19 @@ def rotation_error_deg(pose: Pose) -> float:
 def test_the_matches_of_every_accepted_flash_correct_a_pose_half_a_degree_off() -> None:
     det1, det2 = night(1)
     params = PoseParams()
-    estimate, pairs = refit_pose(
-        det1, det2, 0, FIRST, WIDTH, SEPARATION, TriangulationParams(), params
-    )
+    estimate, pairs = refitted(det1, det2, params.refit_min_snr)
     assert rotation_error_deg(FIRST) > 0.45
     assert rotation_error_deg(estimate.pose) < 0.03
     # The matches of the bright flashes only (the floor is 8 σ): nearly all of them.
     assert 0.9 * 300 <= len(pairs) <= 300 and np.all(np.diff(pairs.frame1) >= 0)
     # With no floor the faint flashes join the fit.
-    every, _ = refit_pose(
-        det1,
-        det2,
-        0,
-        FIRST,
-        WIDTH,
-        SEPARATION,
-        TriangulationParams(),
-        params.model_copy(update={"refit_min_snr": 0.0}),
-    )
+    every, _ = refitted(det1, det2, 0.0)
     assert every.n_pairs > 1.8 * len(pairs)
 
 
 def test_the_covariance_is_scaled_up_to_the_jackknife_only() -> None:
     det1, det2 = night(2)
-    estimate, _ = refit_pose(
-        det1, det2, 0, FIRST, WIDTH, SEPARATION, TriangulationParams(), PoseParams()
-    )
+    estimate, _ = refitted(det1, det2, PoseParams().refit_min_snr)
     se = estimate.stats["rotation_se_deg"]
     for jackknife, scale in ((2 * se, 4.0), (0.5 * se, 1.0), (float("nan"), 1.0)):
         stats = estimate.stats | {"rotation_jackknife_se_deg": jackknife}
