@@ -16,7 +16,11 @@ PROBE_JSON = "work/probe.json"
 #: The night's clock: camera 1's frame 0 in UTC, the sunset (`pipeline.clock`).
 CLOCK_JSON = "work/clock.json"
 SYNC_JSON = "work/sync.json"
+#: The first pose's calibration pairs: camera-1 frame, residual (degrees), inlier.
 CALIBRATION_PAIRS_NPZ = "work/calibration_pairs.npz"
+#: The refit's pairs (the stereo matches of the accepted flashes), in the same layout;
+#: empty when the first pose was kept.
+REFIT_PAIRS_NPZ = "work/refit_pairs.npz"
 #: The first pose, from the confident flashes (``calibration.json``'s layout): what
 #: acceptance matches the cameras with; the pose refitted on the accepted flashes is
 #: ``calibration.json`` (`pipeline.pose_refit`).

@@ -1,13 +1,15 @@
 """Quality report of a run: PNG plots (the summary is `pipeline.summary`).
 
 Plots: the per-frame flash counts of both cameras aligned by the estimated delay, the
-delay votes and cross-correlation, the calibration residuals, the trajectories in 3D
-(and from above) as lines joining each trajectory's flashes in time order, and the
-night's flash pattern (`pipeline.pattern_plots`).
+delay votes and cross-correlation, the residuals of the first pose and of its refit
+(`pipeline.pose_refit`), the trajectories in 3D (and from above) as lines joining each
+trajectory's flashes in time order, and the night's flash pattern
+(`pipeline.pattern_plots`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -39,14 +41,19 @@ def write_plots(workdir: Path, patterns: PatternParams | None = None) -> list[st
     det1 = Detections.from_csv(workdir / artifacts.flashes_name(1))
     det2 = Detections.from_csv(workdir / artifacts.flashes_name(2))
     trajectories = read_trajectories(workdir / artifacts.TRAJECTORIES_CSV)
-    pairs = np.load(workdir / artifacts.CALIBRATION_PAIRS_NPZ)
+    fits = {
+        title: np.load(workdir / name)
+        for title, name in (
+            ("first pose: confident flashes", artifacts.CALIBRATION_PAIRS_NPZ),
+            ("refit: accepted flashes", artifacts.REFIT_PAIRS_NPZ),
+        )
+        if (workdir / name).exists()  # runs of releases before the refit have no refit pairs
+    }
 
     plots = {
         "counts.png": lambda p: plot_counts(det1, det2, probe.n_frames, probe.fps, sync, p),
         "delay.png": lambda p: plot_delay(sync, probe.fps, p),
-        "calibration_residuals.png": lambda p: plot_residuals(
-            pairs["residuals"], pairs["inliers"], p
-        ),
+        "calibration_residuals.png": lambda p: plot_residuals(fits, p),
         "trajectories_3d.png": lambda p: plot_trajectories(trajectories, p),
         "range_uncertainty.png": lambda p: plot_range_uncertainty(trajectories, p),
     }
@@ -116,22 +123,27 @@ def plot_delay(sync: dict[str, Any], fps: float, path: Path) -> None:
     _save(fig, path)
 
 
-def plot_residuals(residuals: np.ndarray, inliers: np.ndarray, path: Path) -> None:
-    """Distribution of the calibration pairs' residuals, inliers and outliers."""
-    fig, ax = plt.subplots(figsize=(6, 3.5))
-    finite = residuals[np.isfinite(residuals)]
-    if len(finite):
+def plot_residuals(fits: Mapping[str, Mapping[str, np.ndarray]], path: Path) -> None:
+    """Residuals of each pose fit's pairs (degrees), inliers and outliers, one panel a fit.
+
+    `fits` maps a panel title to the fit's ``residuals`` and ``inliers``; a fit without
+    pairs (the refit where the first pose was kept) gets no panel.
+    """
+    drawn = {t: fit for t, fit in fits.items() if np.isfinite(fit["residuals"]).any()}
+    fig, axes = plt.subplots(1, max(len(drawn), 1), figsize=(6 * max(len(drawn), 1), 3.5))
+    for ax, (title, fit) in zip(np.atleast_1d(axes), drawn.items(), strict=False):
+        residuals, inliers = np.asarray(fit["residuals"]), np.asarray(fit["inliers"], bool)
+        finite = residuals[np.isfinite(residuals)]
         bins = np.linspace(0, np.quantile(finite, 0.99) * 1.05 + 1e-12, 50).tolist()
         ax.hist(residuals[inliers], bins=bins, label=f"inliers ({int(inliers.sum())})")
         ax.hist(
             residuals[~inliers], bins=bins, alpha=0.7, label=f"outliers ({int((~inliers).sum())})"
         )
         ax.legend()
-    ax.set(
-        xlabel="residual (degrees)",
-        ylabel="calibration pairs",
-        title="Spatial calibration residuals",
-    )
+        ax.set(xlabel="residual (degrees)", ylabel="pairs", title=title)
+    if not drawn:
+        np.atleast_1d(axes)[0].set(title="no calibration pairs")
+    fig.suptitle("Spatial calibration residuals")
     _save(fig, path)
 
 

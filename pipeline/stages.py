@@ -34,6 +34,7 @@ from pipeline.artifacts import (
     FLASHES_CSV,
     POINTS_NPZ,
     POSE_JSON,
+    REFIT_PAIRS_NPZ,
     SUMMARY_JSON,
     SYNC_JSON,
     TRAJECTORIES_CSV,
@@ -49,6 +50,7 @@ from pipeline.jsonio import read_json, write_json
 from pipeline.params import AcceptanceParams, ClassifierParams, validate_separation
 from pipeline.pose import (
     PoseError,
+    PoseEstimate,
     calibrate_pose,
     estimate_pose,
     fit_warnings,
@@ -347,12 +349,7 @@ def pose(ctx: StageContext) -> StageResult:
     det1, det2 = _confident(ctx)
     fit = calibrate_pose(det1, det2, int(delay["delay_frames"]), probe.width, ctx.params.pose)
     estimate, warnings = fit.estimate, fit.warnings
-    np.savez_compressed(
-        ctx.path(CALIBRATION_PAIRS_NPZ),
-        frame1=fit.pairs.frame1,
-        residuals=estimate.residuals,
-        inliers=estimate.inliers,
-    )
+    save_pairs(ctx.path(CALIBRATION_PAIRS_NPZ), fit.pairs.frame1, estimate)
     calibration = Calibration(
         delay_frames=int(delay["delay_frames"]),
         delay_confidence=float(delay["confidence"]),
@@ -466,6 +463,7 @@ def refit(ctx: StageContext) -> StageResult:
     fit = {key: first[key] for key in _FIT}
     warnings: list[str] = []
     refitted: dict[str, Any] | None = None
+    save_pairs(ctx.path(REFIT_PAIRS_NPZ))
     if params.refit_from_accepted:
         det1, det2 = _accepted(ctx)
         try:
@@ -485,6 +483,7 @@ def refit(ctx: StageContext) -> StageResult:
         else:
             warnings = fit_warnings(estimate, calibration.width, params)
             covariance = jackknife_scaled(estimate)
+            save_pairs(ctx.path(REFIT_PAIRS_NPZ), pairs.frame1, estimate)
             refitted = {
                 "min_snr": params.refit_min_snr,
                 "rotation_change_deg": float(
@@ -524,6 +523,18 @@ def refit(ctx: StageContext) -> StageResult:
         "refit": refitted,
     }
     return StageResult(metrics=metrics, warnings=warnings)
+
+
+def save_pairs(
+    path: Path, frame1: NDArray[np.int64] | None = None, estimate: PoseEstimate | None = None
+) -> None:
+    """Write a pose fit's pairs for the report: camera-1 frame, residual (degrees) and
+    inlier flag of each; empty without a fit."""
+    if frame1 is None or estimate is None:
+        frame1, residuals, inliers = np.zeros(0, np.int64), np.zeros(0), np.zeros(0, bool)
+    else:
+        residuals, inliers = estimate.residuals, estimate.inliers
+    np.savez_compressed(path, frame1=frame1, residuals=residuals, inliers=inliers)
 
 
 #: How well a pose fits its pairs, in ``calibration.json`` (the final fit's).

@@ -9,7 +9,13 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from pipeline.artifacts import CALIBRATION_JSON, POSE_JSON, SYNC_JSON, flashes_name
+from pipeline.artifacts import (
+    CALIBRATION_JSON,
+    POSE_JSON,
+    REFIT_PAIRS_NPZ,
+    SYNC_JSON,
+    flashes_name,
+)
 from pipeline.detections import Detections
 from pipeline.geometry import Pose, bearing_to_pixel, rotation_angle
 from pipeline.graph import StageContext, Unit
@@ -130,6 +136,9 @@ def test_the_refit_stage_writes_the_refitted_pose_and_describes_both(tmp_path: P
     # The first fit's warning was about the first pose; the delay's stays.
     assert calibration["warnings"] == ["delay warned"] and result.warnings == []
     assert result.metrics["rotation"] == calibration["rotation"]
+    pairs = np.load(tmp_path / REFIT_PAIRS_NPZ)
+    assert len(pairs["residuals"]) == calibration["n_calibration_pairs"]
+    assert pairs["inliers"].sum() == calibration["n_calibration_inliers"]
 
 
 def test_without_matches_the_first_pose_stays_with_a_warning(tmp_path: Path) -> None:
@@ -140,6 +149,7 @@ def test_without_matches_the_first_pose_stays_with_a_warning(tmp_path: Path) -> 
     assert calibration["n_calibration_pairs"] == 40
     (warning,) = result.warnings
     assert "pose of the confident flashes is kept" in warning
+    assert len(np.load(tmp_path / REFIT_PAIRS_NPZ)["residuals"]) == 0
     assert calibration["warnings"] == ["pose warned", warning]
 
 
