@@ -137,6 +137,8 @@ def check_job_page(page: Page, team: str, reference: Path) -> None:
     label, value = shown("delay_set_aside.cam1")
     assert label.startswith("Frames the delay search set aside")
     assert value == str(summary["delay_set_aside"]["cam1"]) and int(value) > 0
+    label, value = shown("pose_refit.rotation_change_deg")
+    assert label == "Pose refit: rotation change from the first pose" and value.endswith(" °")
     plots = page.locator("#plots img")
     assert plots.count() >= 3
     for i in range(plots.count()):
