@@ -65,6 +65,10 @@ SCHEMA_VERSION = 1
 SNR_EDGES: tuple[float, ...] = (0.0, 3.0, 5.0, 10.0, 20.0, math.inf)
 #: Range bin edges in metres (the last bin is open; the simulator stays within ~21 m).
 RANGE_EDGES_M: tuple[float, ...] = (0.0, 5.0, 8.0, 20.0, math.inf)
+#: Point-spread σ bin edges (pixels of the recording) for the flash-frames >= 5 σ: the
+#: simulator draws 0.6–2 px; the real GoPro 360 flash patches' spots are σ ≈ 1.2–1.9 px
+#: (docs/detection.md, "At 4K").
+PSF_EDGES_PX: tuple[float, ...] = (0.0, 0.8, 1.2, 1.6, math.inf)
 #: Position-error bin edges of found flash-frames, equatorial pixels (the last is the
 #: match tolerance).
 ERROR_EDGES_PX: tuple[float, ...] = (0.0, 0.1, 0.2, 0.3, 0.5, 1.0, DETECTION_TOLERANCE_PX)
@@ -201,6 +205,7 @@ def detection_figures(
     snr = flashes.camera_column("snr", camera)[match.truth_rows]
     distance = flashes.camera_column("range", camera)[match.truth_rows]
     mf_snr = flashes.camera_column("snr_mf", camera)[match.truth_rows]
+    psf = flashes.camera_column("psf", camera)[match.truth_rows]
     strong = snr >= HEADLINE_SNR
     mf_strong = mf_snr >= HEADLINE_SNR
     n_true = int(match.true_detection.sum())
@@ -226,6 +231,7 @@ def detection_figures(
         "by_snr": binned(snr, [("found", match.found)], SNR_EDGES),
         "by_mf_snr": binned(mf_snr, [("found", match.found)], SNR_EDGES),
         "by_range_m": binned(distance, [("found", match.found)], RANGE_EDGES_M),
+        "by_psf_px_snr_ge5": binned(psf[strong], [("found", match.found[strong])], PSF_EDGES_PX),
         "median_error_px": float(np.median(match.error[match.found]))
         if match.found.any()
         else None,
@@ -831,7 +837,12 @@ def format_cuts(rows: list[Row]) -> str:
 def format_bins(name: str, entry: dict[str, Any]) -> str:
     """Recall per SNR and range bin, accepted and candidates, both cameras."""
     lines = [f"{name}: recall by bin (accepted | candidates; n = true flash-frames)"]
-    axes = (("by_snr", "peak SNR"), ("by_mf_snr", "matched-filter SNR"), ("by_range_m", "range m"))
+    axes = (
+        ("by_snr", "peak SNR"),
+        ("by_mf_snr", "matched-filter SNR"),
+        ("by_range_m", "range m"),
+        ("by_psf_px_snr_ge5", "spot sigma px (>= 5 sigma)"),
+    )
     for axis, title in axes:
         for cam in ("cam1", "cam2"):
             acc = entry["cameras"][cam]["accepted"]
@@ -916,5 +927,6 @@ def bins_description() -> dict[str, list[float | None]]:
         "snr": edges(SNR_EDGES),
         "mf_snr": edges(SNR_EDGES),
         "range_m": edges(RANGE_EDGES_M),
+        "psf_px_snr_ge5": edges(PSF_EDGES_PX),
         "error_px": edges(ERROR_EDGES_PX),
     }

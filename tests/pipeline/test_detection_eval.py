@@ -70,6 +70,8 @@ def hand_truth() -> GroundTruth:
         # Grain: a matched filter sees less; row 1 (missed) stays above 5 σ.
         snr_mf1=np.array([1.0, 6.0, 4.0, 20.0, 8.0]),
         snr_mf2=snr1 / 2,
+        psf1=np.array([0.7, 1.0, 1.5, 1.9, 1.0]),
+        psf2=np.full(5, 1.0),
     )
     artifacts = ArtifactTruth(
         camera=[1], frame=[3], u=[52.0], v=[100.0], radius=[3.0], kind=["glint"]
@@ -139,6 +141,9 @@ def test_detection_figures_on_hand_made_truth() -> None:
     assert snr["10-20"]["found_rate"] is None
     rng = by_label(figures["by_range_m"])
     assert [(rng[k]["n"], rng[k]["found"]) for k in rng] == [(1, 1), (1, 0), (1, 1), (1, 1)]
+    # Spot size of the two flash-frames >= 5 sigma (rows 2 and 3, both found).
+    psf = by_label(figures["by_psf_px_snr_ge5"])
+    assert [(psf[k]["n"], psf[k]["found"]) for k in psf] == [(0, 0), (0, 0), (1, 1), (1, 1)]
     # Position errors of the three found: 0 px, 1 px across the seam, 1.5 px.
     assert figures["median_error_px"] == pytest.approx(1.0, abs=1e-4)  # chord, not arc
     errors = by_label(figures["by_error_px"])
