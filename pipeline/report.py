@@ -130,8 +130,9 @@ def plot_residuals(fits: Mapping[str, Mapping[str, np.ndarray]], path: Path) -> 
     pairs (the refit where the first pose was kept) gets no panel.
     """
     drawn = {t: fit for t, fit in fits.items() if np.isfinite(fit["residuals"]).any()}
-    fig, axes = plt.subplots(1, max(len(drawn), 1), figsize=(6 * max(len(drawn), 1), 3.5))
-    for ax, (title, fit) in zip(np.atleast_1d(axes), drawn.items(), strict=False):
+    panels = max(len(drawn), 1)
+    fig, axes = plt.subplots(1, panels, figsize=(6 * panels, 3.5), squeeze=False)
+    for ax, (title, fit) in zip(axes[0], drawn.items(), strict=False):
         residuals, inliers = np.asarray(fit["residuals"]), np.asarray(fit["inliers"], bool)
         finite = residuals[np.isfinite(residuals)]
         bins = np.linspace(0, np.quantile(finite, 0.99) * 1.05 + 1e-12, 50).tolist()
@@ -142,7 +143,7 @@ def plot_residuals(fits: Mapping[str, Mapping[str, np.ndarray]], path: Path) -> 
         ax.legend()
         ax.set(xlabel="residual (degrees)", ylabel="pairs", title=title)
     if not drawn:
-        np.atleast_1d(axes)[0].set(title="no calibration pairs")
+        axes[0, 0].set(title="no calibration pairs")
     fig.suptitle("Spatial calibration residuals")
     _save(fig, path)
 
