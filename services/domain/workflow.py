@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import json
 import uuid
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Collection, Iterable
 from dataclasses import dataclass
 from typing import Any
 
@@ -102,16 +102,18 @@ def _plan_missing(job: Job, storage: Storage) -> list[Stage]:
     probe has succeeded (its `probe.json` gives the cameras' lengths).
     """
     params = ProcessParams.model_validate(job.params)
+    existing = {s.key for s in job.stages}
+    # A job of an earlier release may lack stages added since: they run when it re-runs.
+    whole = [new_stage(u) for u in graph.plan(None, params) if u.key not in existing]
     if not job.stages:
-        return [new_stage(u) for u in graph.plan(None, params)]
+        return whole
     planned = {s.name for s in job.stages}
     unplanned = [e.name for e in graph.STAGES if e.scope == "chunk" and e.name not in planned]
     planner = graph.producer(PROBE_JSON).name
     probe_rows = [s for s in job.stages if s.name == planner]
     probed = bool(probe_rows) and all(s.status == StageStatus.SUCCEEDED for s in probe_rows)
     if not unplanned or not probed:
-        return []
-    existing = {s.key for s in job.stages}
+        return whole
     units = graph.plan(load_probe(storage, job.id), params)
     return [new_stage(u) for u in units if u.key not in existing]
 
@@ -207,13 +209,32 @@ def fail(job: Job, stage: Stage, message: str) -> None:
         states.finish_job(job, JobStatus.FAILED, f"{unit_of(stage).label} failed: {message}")
 
 
-def default_rerun_stage(stages: Iterable[Stage]) -> str | None:
-    """The first stage, in pipeline order, that has not succeeded (None if all have)."""
+def first_incomplete(stages: Iterable[Stage], written: Collection[str]) -> tuple[str, str] | None:
+    """The first stage, in pipeline order, to run again, and why; None if none need to.
+
+    A stage needs to when one of its units has not succeeded, or when it succeeded
+    without writing a file that some unit reads (it ran under an earlier release, which
+    wrote fewer files): `written` names the job's artifacts.
+    """
     stages = list(stages)
+    units = [unit_of(s) for s in stages]
+    unwritten: dict[str, str] = {}
+    for unit in units:
+        for template in graph.stage(unit.stage).reads:
+            if template == graph.EARLIER_METRICS:
+                continue
+            lacking = [n for n in graph.resolve(template, unit, units) if n not in written]
+            if lacking:
+                unwritten.setdefault(graph.producer(template).name, lacking[0])
     for name in graph.STAGE_NAMES:
         rows = [s for s in stages if s.name == name]
         if not rows or any(s.status != StageStatus.SUCCEEDED for s in rows):
-            return name
+            return name, "has not succeeded"
+        if name in unwritten:
+            return name, (
+                f"did not write {unwritten[name]}, which later stages read "
+                "(it ran under an earlier release)"
+            )
     return None
 
 
@@ -235,15 +256,14 @@ def rerun(
     if job.status not in states.FINISHED_JOB:
         raise Conflict(f"job {job.id} is {job.status}; only a finished job can re-run")
     _require_uploaded(job)
-    unfinished = default_rerun_stage(job.stages)
-    start = from_stage or unfinished
+    incomplete = first_incomplete(job.stages, {a.name for a in job.artifacts})
+    start = from_stage or (incomplete[0] if incomplete else None)
     if start is None:
         raise Conflict(f"every stage of job {job.id} succeeded; name from_stage")
     order = graph.STAGE_NAMES
-    if unfinished is not None and order.index(unfinished) < order.index(start):
-        raise Conflict(
-            f"stage {unfinished} of job {job.id} has not succeeded: re-run from it or earlier"
-        )
+    if incomplete is not None and order.index(incomplete[0]) < order.index(start):
+        unfinished, why = incomplete
+        raise Conflict(f"stage {unfinished} of job {job.id} {why}: re-run from it or earlier")
     if params is not None:
         job.params = params
     stale_keys = _reset_from(session, job, start)

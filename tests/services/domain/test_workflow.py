@@ -10,8 +10,10 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import pytest
+from sqlalchemy import delete
 
-from pipeline.artifacts import PROBE_JSON
+from pipeline import graph
+from pipeline.artifacts import PROBE_JSON, REFIT_PAIRS_NPZ
 from pipeline.graph import STAGE_NAMES
 from pipeline.params import ProcessParams
 from pipeline.probe import StereoProbe
@@ -20,6 +22,7 @@ from services.core.models import Artifact, InputFile, Job, Night, Stage, Team
 from services.core.storage.local import LocalStorage
 from services.domain import workflow
 from services.domain.errors import Conflict
+from services.domain.repositories import jobs
 from services.domain.states import finish_job
 from services.domain.workflow import EnqueueError, StageMessage
 
@@ -35,6 +38,9 @@ class Broker:
 
     def __call__(self, messages: list[StageMessage]) -> None:
         self.sent.extend(messages)
+
+    def sent_keys(self) -> list[str]:
+        return [m.key for m in self.sent]
 
     def take(self) -> list[str]:
         keys, self.sent = [m.key for m in self.sent], []
@@ -89,10 +95,26 @@ def statuses(sessions: SessionFactory, job_id: uuid.UUID) -> dict[str, str]:
 def finish(
     sessions: SessionFactory, job_id: uuid.UUID, keys: list[str], status: str = "succeeded"
 ) -> None:
+    """End these stages as a worker would, recording a succeeded unit's outputs as artifacts."""
     with transaction(sessions) as session:
         for stage in session.get_one(Job, job_id).stages:
             if stage.key in keys:
                 stage.status, stage.attempt = status, stage.attempt + 1
+                if status == "succeeded":
+                    session.flush()
+                    for name in graph.writes(workflow.unit_of(stage)):
+                        jobs.save_artifact(session, artifact_row(job_id, stage.id, name))
+
+
+def artifact_row(job_id: uuid.UUID, stage_id: int, name: str, size: int = 1) -> dict[str, Any]:
+    return {
+        "job_id": job_id,
+        "stage_id": stage_id,
+        "name": name,
+        "storage_key": workflow.job_key(job_id, name),
+        "size": size,
+        "content_type": "text/plain",
+    }
 
 
 def test_stages_run_in_dependency_order(
@@ -194,25 +216,27 @@ def add_artifact(
     storage.upload_file(path, storage_key, "text/plain")
     with transaction(sessions) as session:
         stage = next(s for s in session.get_one(Job, job_id).stages if s.key == key)
-        session.add(
-            Artifact(
-                job_id=job_id,
-                stage_id=stage.id,
-                name=name,
-                storage_key=storage_key,
-                size=path.stat().st_size,
-                content_type="text/plain",
-            )
-        )
+        jobs.save_artifact(session, artifact_row(job_id, stage.id, name, path.stat().st_size))
     return storage_key
 
 
 def run_to_failure(
-    sessions: SessionFactory, storage: LocalStorage, job_id: uuid.UUID, failing: str
+    sessions: SessionFactory, storage: LocalStorage, job_id: uuid.UUID, failing: str | None
 ) -> None:
-    """Submit, succeed every stage before `failing`, fail it."""
+    """Submit, succeed every stage before `failing`, fail it (None: succeed them all)."""
     broker = Broker()
     call(sessions, workflow.submit, storage, broker, job_id)
+    drive(sessions, storage, broker, job_id, failing)
+
+
+def drive(
+    sessions: SessionFactory,
+    storage: LocalStorage,
+    broker: Broker,
+    job_id: uuid.UUID,
+    failing: str | None = None,
+) -> None:
+    """Succeed what the broker was sent, and what follows, until `failing` (failed)."""
     while keys := broker.take():
         if failing in keys:
             with transaction(sessions) as session:
@@ -242,7 +266,11 @@ def test_rerun_reuses_earlier_stages(
         job = session.get_one(Job, job_id)
         after = {s.key: (s.attempt, s.status) for s in job.stages}
         assert job.status == "queued" and job.error is None
-        assert [a.name for a in job.artifacts] == ["work/sync.json"]
+        names = {a.name for a in job.artifacts}
+        assert "work/sync.json" in names and "calibration.json" not in names
+        stage_of = {s.id: s.name for s in job.stages}
+        kept_stages = {stage_of[a.stage_id] for a in job.artifacts}
+        assert kept_stages == {"probe", "track", "merge", "sync"}
     for key, (attempt, status) in before.items():
         if key in ("pose", "accept", "refit", "triangulate", "clock", "link", "patterns", "report"):
             assert after[key] == (attempt, "queued" if key in ("pose", "clock") else "pending")
@@ -280,12 +308,59 @@ def test_rerun_from_track_plans_chunks_again(
         assert len([s for s in job.stages if s.name == "track"]) == 4
 
 
-def test_default_rerun_stage() -> None:
-    def rows(**status: str) -> list[Stage]:
-        return [Stage(key=k, name=k.split("/")[0], status=v) for k, v in status.items()]
+def test_first_incomplete_stage() -> None:
+    probe = StereoProbe(width=640, height=320, fps=30.0, n_frames={1: 600, 2: 600})
+    units = graph.plan(probe, ProcessParams.model_validate(PARAMS))
 
-    assert workflow.default_rerun_stage(rows(probe="failed")) == "probe"
-    assert workflow.default_rerun_stage(rows(probe="succeeded")) == "track"
+    def rows(**status: str) -> list[Stage]:
+        """Rows of every unit of the stages named, with their status."""
+        stages = [workflow.new_stage(u) for u in units if u.stage in status]
+        for stage in stages:
+            stage.status = status[stage.name]
+        return stages
+
+    def first(stages: list[Stage], written: set[str]) -> str | None:
+        incomplete = workflow.first_incomplete(stages, written)
+        return incomplete[0] if incomplete else None
+
     done = dict.fromkeys(STAGE_NAMES, "succeeded")
-    assert workflow.default_rerun_stage(rows(**done)) is None
-    assert workflow.default_rerun_stage(rows(**{**done, "link": "cancelled"})) == "link"
+    everything = {name for u in units for name in graph.writes(u)}
+    assert first(rows(probe="failed"), set()) == "probe"
+    assert first(rows(probe="succeeded"), {PROBE_JSON}) == "track"
+    assert first(rows(**done), everything) is None
+    assert first(rows(**{**done, "link": "cancelled"}), everything) == "link"
+    assert first(rows(**{k: v for k, v in done.items() if k != "refit"}), everything) == "refit"
+    # Succeeded under an earlier release that did not write a file the report now reads.
+    assert workflow.first_incomplete(rows(**done), everything - {REFIT_PAIRS_NPZ}) == (
+        "refit",
+        f"did not write {REFIT_PAIRS_NPZ}, which later stages read "
+        "(it ran under an earlier release)",
+    )
+
+
+def test_rerun_of_an_earlier_release_starts_where_its_outputs_end(
+    sessions: SessionFactory, storage: LocalStorage, job_id: uuid.UUID
+) -> None:
+    """A job whose refit stage wrote less than today's, or never ran, re-runs from refit."""
+    run_to_failure(sessions, storage, job_id, None)
+    with transaction(sessions) as session:
+        session.execute(delete(Artifact).where(Artifact.name == REFIT_PAIRS_NPZ))
+    with pytest.raises(Conflict, match=rf"stage refit of job .* did not write {REFIT_PAIRS_NPZ}"):
+        call(sessions, workflow.rerun, storage, Broker(), job_id, "report")
+    assert set(statuses(sessions, job_id).values()) == {"succeeded"}  # nothing changed
+
+    broker = Broker()
+    assert call(sessions, workflow.rerun, storage, broker, job_id) == "refit"
+    assert sorted(broker.sent_keys()) == ["clock", "refit"]
+    drive(sessions, storage, broker, job_id)
+    assert statuses(sessions, job_id)["report"] == "succeeded"
+
+    # A release before the refit stage existed: no row at all. It is planned on re-run.
+    with transaction(sessions) as session:
+        job = session.get_one(Job, job_id)
+        refit = next(s for s in job.stages if s.key == "refit")
+        job.stages.remove(refit)
+        session.delete(refit)
+    assert call(sessions, workflow.rerun, storage, broker, job_id) == "refit"
+    assert sorted(broker.take()) == ["clock", "refit"]
+    assert statuses(sessions, job_id)["refit"] == "queued"
