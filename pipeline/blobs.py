@@ -9,11 +9,9 @@ reductions over the labels.
 from __future__ import annotations
 
 import functools
-import math
 from dataclasses import dataclass, fields
 from typing import Any, Self
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 from scipy.sparse import coo_matrix
@@ -58,12 +56,6 @@ class Blobs:
     hollow : float64
         How much darker than a moment ago the darkest spot around the peak has become,
         over the peak's response (`pipeline.hollow.hollow_depth`); NaN where not measured.
-    unexplained_recent, unexplained_earlier : float64
-        Share of the peak's light that the best-shifted frame `pipeline.motion.LAGS_S`
-        before does not explain (`pipeline.motion.shifted_match`); NaN where not measured.
-    shift_gain_recent, shift_gain_earlier : float64
-        That best shift's squared difference over the unshifted one's; NaN where not
-        measured.
     """
 
     x: NDArray[np.float64]
@@ -75,10 +67,6 @@ class Blobs:
     snr: NDArray[np.float64]
     trough: NDArray[np.float64]
     hollow: NDArray[np.float64]
-    unexplained_recent: NDArray[np.float64]
-    unexplained_earlier: NDArray[np.float64]
-    shift_gain_recent: NDArray[np.float64]
-    shift_gain_earlier: NDArray[np.float64]
 
     def __len__(self) -> int:
         return len(self.x)
@@ -293,32 +281,6 @@ def window_indices(
     return np.clip(rows[:, None] + dr, 0, height - 1) * width + (cols[:, None] + dc) % width
 
 
-@functools.cache
-def smoothing_window(radius: int, sigma: float) -> tuple[NDArray[np.intp], NDArray[np.float32]]:
-    """Offsets (raster order, for `window_indices`) of a square of half side `radius`
-    plus the halo of a Gaussian of `sigma` pixels, and the banded matrix that filters
-    one axis of it down to the square: ``(2 radius + 1, 2 (radius + halo) + 1)``."""
-    halo = math.ceil(3 * sigma) if sigma > 0 else 0
-    side = 2 * (radius + halo) + 1
-    steps = np.arange(side) - radius - halo
-    dr, dc = np.meshgrid(steps, steps, indexing="ij")
-    offsets = np.column_stack([dr.ravel(), dc.ravel()])
-    kernel = cv2.getGaussianKernel(2 * halo + 1, sigma).ravel() if halo else np.ones(1)
-    band = np.zeros((2 * radius + 1, side), np.float32)
-    for i in range(2 * radius + 1):
-        band[i, i : i + 2 * halo + 1] = kernel
-    offsets.flags.writeable = band.flags.writeable = False  # shared by every caller
-    return offsets, band
-
-
-def smooth_windows(values: NDArray[np.generic], band: NDArray[np.float32]) -> NDArray[np.float32]:
-    """Windows gathered at `smoothing_window`'s offsets, (N, side²), Gaussian-filtered
-    and cropped to the square: (N, 2 radius + 1, 2 radius + 1)."""
-    side = band.shape[1]
-    raw = np.asarray(values, np.float32).reshape(-1, side, side)
-    return np.einsum("ij,njk,lk->nil", band, raw, band, optimize=True)
-
-
 def _around(
     image: NDArray[np.floating], idx: NDArray[np.intp], offsets: NDArray[np.intp]
 ) -> NDArray[np.floating]:
@@ -460,7 +422,8 @@ def measure(
     snr: NDArray[np.float64],
     x: NDArray[np.float64],
     y: NDArray[np.float64],
-    **around: NDArray[np.float64],
+    troughs: NDArray[np.float64],
+    hollows: NDArray[np.float64],
 ) -> Blobs:
     """Measure labelled blobs of one frame at full resolution.
 
@@ -478,9 +441,8 @@ def measure(
         Each blob's largest filtered response in units of σ (passed through).
     x, y : ndarray of float, shape (n,)
         Each blob's centroid (`centroid`), pixels (passed through).
-    **around : ndarray of float, shape (n,)
-        What was measured around each blob's peak, by `Blobs` field (``trough``,
-        ``hollow``, ``unexplained_recent`` …; passed through).
+    troughs, hollows : ndarray of float, shape (n,)
+        Each blob's `trough` and hollow depth (passed through).
 
     Returns
     -------
@@ -504,5 +466,6 @@ def measure(
         peak_x=cols[order[starts]],
         peak_y=rows[order[starts]],
         snr=snr,
-        **around,
+        trough=troughs,
+        hollow=hollows,
     )

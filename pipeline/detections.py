@@ -53,13 +53,6 @@ class Detections:
         How much darker than 0.1–0.4 s before the darkest spot around the peak has
         become, over the peak's response (`pipeline.hollow`): about 0 for a flash, down
         to −1 beside a light that moved; NaN where not measured.
-    unexplained_recent, unexplained_earlier : float32
-        Share of the peak's contrast that the best-shifted frame 2 (``recent``) or 8
-        (``earlier``) frames before at 30 fps does not explain (`pipeline.motion`): about 1
-        for a light that appeared, about 0 for one that moved; NaN where not measured.
-    shift_gain_recent, shift_gain_earlier : float32
-        That best shift's squared difference over the unshifted one's
-        (`pipeline.motion`): 1 where the scene is still, below 1 where it moved.
     """
 
     frame: np.ndarray
@@ -74,10 +67,6 @@ class Detections:
     recurrence: np.ndarray
     trough: np.ndarray
     hollow: np.ndarray
-    unexplained_recent: np.ndarray
-    unexplained_earlier: np.ndarray
-    shift_gain_recent: np.ndarray
-    shift_gain_earlier: np.ndarray
 
     _DTYPES: ClassVar[dict[str, type]] = {
         "frame": np.int64,
@@ -92,10 +81,6 @@ class Detections:
         "recurrence": np.float32,
         "trough": np.float32,
         "hollow": np.float32,
-        "unexplained_recent": np.float32,
-        "unexplained_earlier": np.float32,
-        "shift_gain_recent": np.float32,
-        "shift_gain_earlier": np.float32,
     }
 
     def __post_init__(self) -> None:
@@ -127,15 +112,12 @@ class Detections:
         recurrence: ArrayLike | None = None,
         trough: ArrayLike | None = None,
         hollow: ArrayLike | None = None,
-        unexplained_recent: ArrayLike | None = None,
-        unexplained_earlier: ArrayLike | None = None,
-        shift_gain_recent: ArrayLike | None = None,
-        shift_gain_earlier: ArrayLike | None = None,
     ) -> Self:
         """Build a table from the required columns; optional ones get neutral defaults.
 
         Missing ``peak_x``/``peak_y`` default to the rounded centroid, ``area`` to 1,
-        the other measurements (``peak``, ``flash_probability``, ``snr`` …) to NaN.
+        ``peak``, ``flash_probability``, ``snr``, ``recurrence``, ``trough`` and ``hollow`` to
+        NaN.
         """
         x = np.asarray(x, dtype=np.float64)
         y = np.asarray(y, dtype=np.float64)
@@ -145,18 +127,16 @@ class Detections:
             x=x,
             y=y,
             area=np.ones(n) if area is None else np.asarray(area),
-            peak=_or_nan(peak, n),
+            peak=np.full(n, np.nan) if peak is None else np.asarray(peak),
             peak_x=np.rint(x) if peak_x is None else np.asarray(peak_x),
             peak_y=np.rint(y) if peak_y is None else np.asarray(peak_y),
-            flash_probability=_or_nan(flash_probability, n),
-            snr=_or_nan(snr, n),
-            recurrence=_or_nan(recurrence, n),
-            trough=_or_nan(trough, n),
-            hollow=_or_nan(hollow, n),
-            unexplained_recent=_or_nan(unexplained_recent, n),
-            unexplained_earlier=_or_nan(unexplained_earlier, n),
-            shift_gain_recent=_or_nan(shift_gain_recent, n),
-            shift_gain_earlier=_or_nan(shift_gain_earlier, n),
+            flash_probability=(
+                np.full(n, np.nan) if flash_probability is None else np.asarray(flash_probability)
+            ),
+            snr=np.full(n, np.nan) if snr is None else np.asarray(snr),
+            recurrence=np.full(n, np.nan) if recurrence is None else np.asarray(recurrence),
+            trough=np.full(n, np.nan) if trough is None else np.asarray(trough),
+            hollow=np.full(n, np.nan) if hollow is None else np.asarray(hollow),
         )
 
     @classmethod
@@ -274,11 +254,6 @@ class Detections:
             flash_probability=table.get("flash_probability"),
             snr=table.get("snr"),
         )
-
-
-def _or_nan(column: ArrayLike | None, n: int) -> NDArray:
-    """`column` as an array, or `n` NaNs (not measured) when absent."""
-    return np.full(n, np.nan) if column is None else np.asarray(column)
 
 
 def write_csv(

@@ -9,8 +9,7 @@ the delay and the pose are known, from the other one:
   dark it is beside it: against the running background (`pipeline.blobs.trough`: a
   swaying edge is bright on one side, dark on the other) and against the frames a
   moment before (`pipeline.hollow`: a light that moved leaves a dark hollow where it
-  was; a flash lights up from nothing), and how much of its light a shifted earlier
-  frame explains (`pipeline.motion`: swaying leaves carry their light with them);
+  was; a flash lights up from nothing);
 * its light curve (`pipeline.acceptance.spot_chains`): how long the spot stays lit
   (faint peaks counted), how long it is a candidate, how many candidates the chain
   holds, the chain's best SNR and probability, and, explicit for the same reason as the
@@ -70,10 +69,6 @@ _OWN: tuple[str, ...] = (
     "candidate_lit_share",
     "trough",
     "hollow",
-    "unexplained_recent",
-    "unexplained_earlier",
-    "shift_gain_recent",
-    "shift_gain_earlier",
     *_VERDICTS,
 )
 #: Own columns of the matched candidate of the other camera, read as ``other_<name>``.
@@ -228,10 +223,6 @@ def _own_features(
                 candidate_lit / ev.lit_frames,
                 det.trough.astype(np.float64),
                 det.hollow.astype(np.float64),
-                det.unexplained_recent.astype(np.float64),
-                det.unexplained_earlier.astype(np.float64),
-                det.shift_gain_recent.astype(np.float64),
-                det.shift_gain_earlier.astype(np.float64),
                 verdicts,
             ]
         )

@@ -15,14 +15,35 @@ about 0 for a flash, down to −1 for a light that moved by more than its size.
 
 from __future__ import annotations
 
+import functools
+import math
+
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from pipeline.blobs import smooth_windows, smoothing_window, window_indices
+from pipeline.blobs import window_indices
 from pipeline.recurrence import BrightHistory
 
 #: The frames the current one is compared with, seconds before it.
 RECENT_S = (0.1, 0.4)
+
+
+@functools.cache
+def _geometry(radius: int, sigma: float) -> tuple[NDArray[np.intp], NDArray[np.float32]]:
+    """Offsets of the window plus the filter's halo (raster order), and the banded
+    matrix that filters one axis of it down to the window: ``(2r + 1, 2r + 1 + 2h)``."""
+    halo = math.ceil(3 * sigma) if sigma > 0 else 0
+    side = 2 * (radius + halo) + 1
+    steps = np.arange(side) - radius - halo
+    dr, dc = np.meshgrid(steps, steps, indexing="ij")
+    offsets = np.column_stack([dr.ravel(), dc.ravel()])
+    kernel = cv2.getGaussianKernel(2 * halo + 1, sigma).ravel() if halo else np.ones(1)
+    band = np.zeros((2 * radius + 1, side), np.float32)
+    for i in range(2 * radius + 1):
+        band[i, i : i + 2 * halo + 1] = kernel
+    offsets.flags.writeable = band.flags.writeable = False  # shared by every caller
+    return offsets, band
 
 
 def hollow_depth(
@@ -68,10 +89,12 @@ def hollow_depth(
     if n == 0:
         return np.zeros(0)
     lags = (max(1, round(RECENT_S[0] * fps)), max(1, round(RECENT_S[1] * fps)))
-    offsets, band = smoothing_window(radius, sigma)
+    offsets, band = _geometry(radius, sigma)
     pixels = window_indices(image.shape, idx, offsets)
     past = history.mean_before(k, lags, pixels)
     if past is None:
         return np.full(n, np.nan)
-    filtered = smooth_windows(image.ravel()[pixels].astype(np.float32) - past, band)
+    side = band.shape[1]
+    change = (image.ravel()[pixels].astype(np.float32) - past).reshape(n, side, side)
+    filtered = np.einsum("ij,njk,lk->nil", band, change, band, optimize=True)
     return filtered.reshape(n, -1).min(axis=1).astype(np.float64) / np.asarray(response, np.float64)

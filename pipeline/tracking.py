@@ -88,7 +88,6 @@ from pipeline.chunking import frames_read
 from pipeline.detections import Detections
 from pipeline.hollow import hollow_depth
 from pipeline.matched_filter import bin_image, binning, matched_filter
-from pipeline.motion import SHIFT_PX, shifted_match
 from pipeline.noise import SAMPLE_EVERY, PixelNoise, tile_grid
 from pipeline.params import TrackingParams
 from pipeline.patches import extract_patches
@@ -308,7 +307,6 @@ class _FrameDetector:
         self._pixels = PixelIndex(self._binned, min(radius, self._binned[1]))
         self._ring_px = max(radius + 1, math.ceil(3 * self._sigma))
         self._trough_px = max(1, round(params.trough_radius_px / self._bin))
-        self._shift_px = max(1, math.ceil(SHIFT_PX / self._bin))
         self._fps = info.fps
         # The foreground and its filtered image, reused by every lane and frame: a fresh
         # pair per frame costs the kernel ~2,000 page faults a frame at 4K.
@@ -408,24 +406,7 @@ class _FrameDetector:
             self._trough_px,
             self._sigma,
         )
-        unexplained, gain = shifted_match(
-            small, k, self._history, self._fps, peaks, self._shift_px, self._sigma
-        )
-        blobs = measure(
-            full_idx,
-            full_labels,
-            values,
-            luma,
-            blob_snr[keep],
-            x,
-            y,
-            trough=troughs,
-            hollow=hollows,
-            unexplained_recent=unexplained[:, 0],
-            unexplained_earlier=unexplained[:, 1],
-            shift_gain_recent=gain[:, 0],
-            shift_gain_earlier=gain[:, 1],
-        )
+        blobs = measure(full_idx, full_labels, values, luma, blob_snr[keep], x, y, troughs, hollows)
         faint_idx, faint_snr = self._faint_cap(faint_idx, faint_snr)
         faint_x, faint_y = subpixel_peak(filtered, faint_idx, self._bin)
         return blobs, FaintPeaks(faint_x, faint_y, faint_snr)
@@ -609,10 +590,6 @@ def _candidate_rows(frame_index: int, blobs: Blobs, recurrence: NDArray[np.float
         recurrence=recurrence,
         trough=blobs.trough,
         hollow=blobs.hollow,
-        unexplained_recent=blobs.unexplained_recent,
-        unexplained_earlier=blobs.unexplained_earlier,
-        shift_gain_recent=blobs.shift_gain_recent,
-        shift_gain_earlier=blobs.shift_gain_earlier,
     )
 
 
