@@ -102,18 +102,16 @@ def _plan_missing(job: Job, storage: Storage) -> list[Stage]:
     probe has succeeded (its `probe.json` gives the cameras' lengths).
     """
     params = ProcessParams.model_validate(job.params)
-    existing = {s.key for s in job.stages}
-    # A job of an earlier release may lack stages added since: they run when it re-runs.
-    whole = [new_stage(u) for u in graph.plan(None, params) if u.key not in existing]
     if not job.stages:
-        return whole
+        return [new_stage(u) for u in graph.plan(None, params)]
     planned = {s.name for s in job.stages}
     unplanned = [e.name for e in graph.STAGES if e.scope == "chunk" and e.name not in planned]
     planner = graph.producer(PROBE_JSON).name
     probe_rows = [s for s in job.stages if s.name == planner]
     probed = bool(probe_rows) and all(s.status == StageStatus.SUCCEEDED for s in probe_rows)
     if not unplanned or not probed:
-        return whole
+        return []
+    existing = {s.key for s in job.stages}
     units = graph.plan(load_probe(storage, job.id), params)
     return [new_stage(u) for u in units if u.key not in existing]
 
@@ -269,12 +267,26 @@ def rerun(
     stale_keys = _reset_from(session, job, start)
     if not job.stages:  # cancelled before it was ever submitted
         job.stages = _plan_missing(job, storage)
+    job.stages.extend(_added_since(job, start))
     states.requeue_job(job)
     session.commit()
     for key in stale_keys:
         storage.delete(key)
     advance(session, storage, send, job_id)
     return start
+
+
+def _added_since(job: Job, start: str) -> list[Stage]:
+    """Rows for the whole-run and per-camera units from `start` on that the job lacks:
+    stages added by a later release than the one that ran it."""
+    existing = {s.key for s in job.stages}
+    first = graph.STAGE_NAMES.index(start)
+    units = graph.plan(None, ProcessParams.model_validate(job.params))
+    return [
+        new_stage(u)
+        for u in units
+        if u.key not in existing and graph.STAGE_NAMES.index(u.stage) >= first
+    ]
 
 
 def _reset_from(session: Session, job: Job, start: str) -> list[str]:

@@ -11,12 +11,14 @@ from typing import Any
 
 import httpx
 from fastapi.testclient import TestClient
+from sqlalchemy.orm import Session
 
-from pipeline.graph import Unit
+from pipeline.graph import Unit, writes
 from services.core.db import SessionFactory, transaction
 from services.core.models import Job, Night, Stage, Team
 from services.domain import teams
-from services.domain.workflow import new_stage
+from services.domain.repositories import jobs
+from services.domain.workflow import job_key, new_stage, unit_of
 
 TEST_ADMIN_TOKEN = "test-admin-token"
 #: Parameters of every test job: 6 s tracking chunks, so each camera has 4 in 20 s.
@@ -187,3 +189,22 @@ def queued_stage(
 def stage_row(sessions: SessionFactory, job_id: str) -> Stage:
     with sessions() as session:
         return session.get_one(Job, uuid.UUID(job_id)).stages[0]
+
+
+def artifact_row(job_id: uuid.UUID, stage_id: int, name: str, size: int = 1) -> dict[str, Any]:
+    """An artifact row (`jobs.save_artifact`) of a job's file `name`."""
+    return {
+        "job_id": job_id,
+        "stage_id": stage_id,
+        "name": name,
+        "storage_key": job_key(job_id, name),
+        "size": size,
+        "content_type": "text/plain",
+    }
+
+
+def record_outputs(session: Session, job_id: uuid.UUID, stage: Stage) -> None:
+    """Artifact rows for what a succeeded stage row's unit writes, as a worker records
+    them (the stage must have its id: flush first)."""
+    for name in writes(unit_of(stage)):
+        jobs.save_artifact(session, artifact_row(job_id, stage.id, name))

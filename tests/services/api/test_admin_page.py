@@ -18,7 +18,13 @@ from services.domain.states import finish_job
 from services.domain.workflow import new_stage
 from tests.services.api.test_pages import browser  # noqa: F401  (the fixture)
 from tests.services.conftest import LiveServer, Service
-from tests.services.helpers import TEST_ADMIN_TOKEN, auth, create_night, make_team
+from tests.services.helpers import (
+    TEST_ADMIN_TOKEN,
+    auth,
+    create_night,
+    make_team,
+    record_outputs,
+)
 
 FILES = [
     {"camera": c, "chapter": 0, "filename": f"cam{c}.mp4", "size": 10, "sha256": "e" * 64}
@@ -41,6 +47,10 @@ def failed_job(service: Service) -> str:
         row.stages = [new_stage(u) for u in plan(probe, ProcessParams())]  # one chunk each
         for stage in row.stages:
             stage.status = "succeeded" if stage.name in ("probe", "track", "merge") else "pending"
+        session.flush()
+        for stage in row.stages:
+            if stage.status == "succeeded":
+                record_outputs(session, row.id, stage)
         row.status = "running"
         next(s for s in row.stages if s.name == "sync").status = "failed"
         finish_job(row, "failed", "sync failed: no flash seen by both cameras")

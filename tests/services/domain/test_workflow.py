@@ -25,6 +25,7 @@ from services.domain.errors import Conflict
 from services.domain.repositories import jobs
 from services.domain.states import finish_job
 from services.domain.workflow import EnqueueError, StageMessage
+from tests.services.helpers import artifact_row, record_outputs
 
 T = TypeVar("T")
 PARAMS = {"chunk_s": 6, "tracking": {"block_s": 6}, "classifier": {"enabled": False}}
@@ -102,19 +103,7 @@ def finish(
                 stage.status, stage.attempt = status, stage.attempt + 1
                 if status == "succeeded":
                     session.flush()
-                    for name in graph.writes(workflow.unit_of(stage)):
-                        jobs.save_artifact(session, artifact_row(job_id, stage.id, name))
-
-
-def artifact_row(job_id: uuid.UUID, stage_id: int, name: str, size: int = 1) -> dict[str, Any]:
-    return {
-        "job_id": job_id,
-        "stage_id": stage_id,
-        "name": name,
-        "storage_key": workflow.job_key(job_id, name),
-        "size": size,
-        "content_type": "text/plain",
-    }
+                    record_outputs(session, job_id, stage)
 
 
 def test_stages_run_in_dependency_order(
