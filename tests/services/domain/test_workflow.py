@@ -44,7 +44,7 @@ class Broker:
         return [m.key for m in self.sent]
 
     def take(self) -> list[str]:
-        keys, self.sent = [m.key for m in self.sent], []
+        keys, self.sent = self.sent_keys(), []
         return keys
 
 
