@@ -83,6 +83,13 @@ _STEREO: tuple[str, ...] = (
 )
 #: Column names of a feature row, in order.
 FEATURES: tuple[str, ...] = _OWN + _STEREO
+#: Columns a second pass adds to a row: the first pass's flash probability relayed along
+#: the candidate's links (`relayed_probabilities`).
+RELAYED: tuple[str, ...] = (
+    "partner_flash_probability",
+    "light_curve_flash_probability",
+    "pair_flash_probability",
+)
 
 
 @dataclass(frozen=True)
@@ -132,6 +139,77 @@ def stereo_matches(
     return StereoMatches(
         points.index1.astype(np.intp), points.index2.astype(np.intp), gap_deg.astype(np.float64)
     )
+
+
+@dataclass(frozen=True)
+class CandidateLinks:
+    """How the candidates of both cameras are linked, over their rows stacked (camera 1's,
+    then camera 2's).
+
+    Attributes
+    ----------
+    light_curve : ndarray of intp
+        Light curve of each row (`pipeline.acceptance.spot_chains`), labels distinct
+        across the cameras.
+    partner : ndarray of intp
+        Row of its stereo match in the other camera (`StereoMatches`), -1 if unmatched.
+    """
+
+    light_curve: NDArray[np.intp]
+    partner: NDArray[np.intp]
+
+
+def candidate_links(evidence: tuple[Evidence, Evidence], matches: StereoMatches) -> CandidateLinks:
+    """`CandidateLinks` of both cameras' candidates from their evidence and matches."""
+    n1, n2 = len(evidence[0]), len(evidence[1])
+    offset = int(evidence[0].chain.max()) + 1 if n1 else 0
+    light_curve = np.concatenate([evidence[0].chain, evidence[1].chain + offset]).astype(np.intp)
+    partner = np.full(n1 + n2, -1, dtype=np.intp)
+    partner[matches.index1] = matches.index2 + n1
+    partner[matches.index2 + n1] = matches.index1
+    return CandidateLinks(light_curve, partner)
+
+
+def relayed_probabilities(
+    probability: NDArray[np.floating], links: CandidateLinks
+) -> NDArray[np.float64]:
+    """The `RELAYED` columns: what a first pass thought of the candidates linked to each.
+
+    A flash is one light curve in each camera, and the two are matched frame after
+    frame; a first pass weighs each candidate apart, so the frames where a flash rises
+    or falls, or where leaves crowd its spot, can look worse than its best frame, and
+    than its match in the other camera. Per row (NaN where there is nothing to relay):
+
+    * ``partner_flash_probability``: the stereo match's first-pass probability;
+    * ``light_curve_flash_probability``: the largest one along its own light curve;
+    * ``pair_flash_probability``: the largest ``light_curve_flash_probability`` of the
+      other camera's light curves its light curve is matched with.
+
+    Parameters
+    ----------
+    probability : ndarray, shape (N,)
+        First-pass flash probability of each row (camera 1's rows, then camera 2's).
+    links : CandidateLinks
+        Light curves and stereo partners of the same rows.
+
+    Returns
+    -------
+    ndarray, shape (N, len(RELAYED))
+    """
+    p = np.asarray(probability, np.float64)
+    curve = links.light_curve
+    n_curves = int(curve.max()) + 1 if len(curve) else 0
+    curve_best = np.zeros(n_curves)
+    np.maximum.at(curve_best, curve, p)
+    matched = links.partner >= 0
+    partner = links.partner[matched]
+    out = np.full((len(p), len(RELAYED)), np.nan)
+    out[matched, 0] = p[partner]
+    out[:, 1] = curve_best[curve]
+    pair_best = np.full(n_curves, np.nan)
+    np.fmax.at(pair_best, curve[matched], curve_best[curve[partner]])
+    out[:, 2] = pair_best[curve]
+    return out
 
 
 def candidate_features(

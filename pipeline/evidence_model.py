@@ -7,7 +7,12 @@ the worst case of its own kind, so a 6 σ candidate with a good patch, a clean l
 curve and a match in the other camera 0.1° from its ray is rejected as surely as a
 glint. The evidence model weighs all of it together (`pipeline.evidence_features`):
 gradient-boosted trees (`pipeline.trees`) give each candidate a flash probability, and
-the candidates at or above the model's threshold are the flashes.
+the candidates at or above the model's threshold are the flashes. A model may weigh in
+two passes: the second reads, beside the same evidence, what the first made of the
+candidates linked to each (`pipeline.evidence_features.relayed_probabilities`: the
+best frame of its light curve, its stereo match, the best frame of the light curves
+that match), so a flash's faint first frames and a match whose own patch is in doubt
+lean on the flash and the match as a whole.
 
 The rules still choose the *confident* flashes that the delay and the pose are
 estimated from, where purity matters more than recall; the model decides the final
@@ -31,7 +36,15 @@ from numpy.typing import NDArray
 
 from pipeline.acceptance import Evidence, Verdict
 from pipeline.detections import Detections
-from pipeline.evidence_features import FEATURES, StereoMatches, candidate_features
+from pipeline.evidence_features import (
+    FEATURES,
+    RELAYED,
+    CandidateLinks,
+    StereoMatches,
+    candidate_features,
+    candidate_links,
+    relayed_probabilities,
+)
 from pipeline.params import AcceptanceParams, ClassifierParams, FlickerParams, TrackingParams
 from pipeline.trees import TreeEnsemble
 
@@ -60,6 +73,10 @@ class EvidenceModel:
     features : tuple of str
         The `FEATURES` it reads, in its trees' column order: a release may compute more
         than a model was trained on, so a new kind of evidence does not retire a model.
+    second : TreeEnsemble or None
+        A second pass over the same columns followed by `RELAYED`: the first pass's
+        probabilities of the candidates linked to each (its light curve, its stereo
+        match). None: the first pass decides (models of earlier releases).
     """
 
     trees: TreeEnsemble
@@ -67,6 +84,7 @@ class EvidenceModel:
     classifier: str
     card: dict[str, Any]
     features: tuple[str, ...] = FEATURES
+    second: TreeEnsemble | None = None
 
     def __post_init__(self) -> None:
         unknown = [name for name in self.features if name not in FEATURES]
@@ -74,6 +92,11 @@ class EvidenceModel:
             raise ValueError(
                 f"the evidence model reads features {list(self.features)} over "
                 f"{self.trees.n_features} columns; this release computes {list(FEATURES)}"
+            )
+        if self.second is not None and self.second.n_features != len(self.features) + len(RELAYED):
+            raise ValueError(
+                f"the evidence model's second pass reads {self.second.n_features} columns, "
+                f"not its {len(self.features)} features and {len(RELAYED)} relayed ones"
             )
 
     @property
@@ -89,8 +112,9 @@ class EvidenceModel:
         card = {
             k: v
             for k, v in data.items()
-            if k not in ("trees", "threshold", "classifier", "features")
+            if k not in ("trees", "second_trees", "threshold", "classifier", "features")
         }
+        second = data.get("second_trees")
         try:
             return cls(
                 trees=TreeEnsemble.from_dict(data["trees"]),
@@ -98,6 +122,7 @@ class EvidenceModel:
                 classifier=str(data["classifier"]),
                 card=card,
                 features=tuple(data.get("features", ())),
+                second=None if second is None else TreeEnsemble.from_dict(second),
             )
         except ValueError as exc:
             raise ValueError(f"{path}: {exc}") from None
@@ -111,14 +136,29 @@ class EvidenceModel:
             "classifier": self.classifier,
         }
         head = json.dumps(card, indent=1)
-        trees = json.dumps(self.trees.to_dict(), separators=(",", ":"))
-        text = f'{head[:-2]},\n "trees": {trees}\n}}\n'
-        Path(path).write_text(text, encoding="utf-8")
+        ensembles = {"trees": self.trees, "second_trees": self.second}
+        trees = ",\n".join(
+            f' "{key}": ' + json.dumps(value.to_dict(), separators=(",", ":"))
+            for key, value in ensembles.items()
+            if value is not None
+        )
+        Path(path).write_text(f"{head[:-2]},\n{trees}\n}}\n", encoding="utf-8")
 
-    def probability(self, rows: NDArray[np.floating]) -> NDArray[np.float64]:
-        """Flash probability of each row of `FEATURES` (the model reads its own columns)."""
-        columns = [FEATURES.index(name) for name in self.features]
-        return self.trees.predict_proba(rows[:, columns])
+    def probability(
+        self, rows: NDArray[np.floating], links: CandidateLinks | None = None
+    ) -> NDArray[np.float64]:
+        """Flash probability of each row of `FEATURES` (the model reads its own columns).
+
+        With the rows' `links` (both cameras' candidates, `candidate_links`) and a second
+        pass, the second pass's; else the first pass's.
+        """
+        own = rows[:, [FEATURES.index(name) for name in self.features]]
+        first = self.trees.predict_proba(own)
+        if self.second is None or links is None:
+            return first
+        return self.second.predict_proba(
+            np.column_stack([own, relayed_probabilities(first, links)])
+        )
 
 
 def evidence_model(
@@ -195,7 +235,8 @@ def weigh(
     model's)."""
     rows = candidate_features(candidates, evidence, matches, width, fps, flicker)
     cut = model.threshold if threshold is None else threshold
-    p1, p2 = (model.probability(r) for r in rows)
+    p = model.probability(np.vstack(rows), candidate_links(evidence, matches))
+    p1, p2 = p[: len(rows[0])], p[len(rows[0]) :]
     matched = [np.zeros(len(c), bool) for c in candidates]
     matched[0][matches.index1] = True
     matched[1][matches.index2] = True

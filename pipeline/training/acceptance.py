@@ -8,7 +8,11 @@ flash of its frame lies within `pipeline.evaluate.DETECTION_TOLERANCE_PX` (the 2
 precision's definition of a true detection).
 
 Gradient-boosted trees (scikit-learn's ``HistGradientBoostingClassifier``, a training
-dependency only) are fitted; the threshold is the one of largest F1 over out-of-fold
+dependency only) are fitted, then a second pass that also reads the first pass's
+probabilities of the candidates linked to each (`pipeline.evidence_features.RELAYED`):
+out of fold, so that it learns how far to trust a first pass on nights that pass did not
+see (stacking; the shipped first pass, trained on every night, is a little surer of
+itself than those out-of-fold passes). The threshold is the one of largest F1 over out-of-fold
 predictions, folds being whole seeds (the nights of one seed share their fireflies),
 unless one is given (that cut moves with the mix of nights: many easy nights pull it
 down, so a retrained model can keep the shipped operating point).
@@ -30,7 +34,13 @@ from pipeline.acceptance import Evidence, stereo_gates
 from pipeline.artifacts import CALIBRATION_JSON, EVIDENCE_NPZ, candidates_name
 from pipeline.detections import Detections
 from pipeline.evaluate import match_detections
-from pipeline.evidence_features import candidate_features, stereo_matches
+from pipeline.evidence_features import (
+    CandidateLinks,
+    candidate_features,
+    candidate_links,
+    relayed_probabilities,
+    stereo_matches,
+)
 from pipeline.evidence_model import EvidenceModel
 from pipeline.params import ProcessParams
 from pipeline.results import read_calibration
@@ -64,6 +74,8 @@ class Night:
     seed : int
     rows : ndarray, shape (N, len(FEATURES))
     is_flash : ndarray of bool, shape (N,)
+    links : CandidateLinks
+        The rows' light curves and stereo partners (`candidate_links`).
     """
 
     name: str
@@ -71,6 +83,7 @@ class Night:
     seed: int
     rows: NDArray[np.float64]
     is_flash: NDArray[np.bool_]
+    links: CandidateLinks
 
 
 def night_rows(results: Path, truth: GroundTruth, params: ProcessParams) -> Night:
@@ -99,7 +112,8 @@ def night_rows(results: Path, truth: GroundTruth, params: ProcessParams) -> Nigh
     labels = [match_detections(candidates[c], truth, c + 1).true_detection for c in (0, 1)]
     kind = f"{truth.scenario} {truth.width}px {truth.fps:g}fps"
     name = f"{truth.scenario} s{truth.seed} {truth.width}px {truth.fps:g}fps"
-    return Night(name, kind, truth.seed, np.vstack(rows), np.concatenate(labels))
+    links = candidate_links((evidence[0], evidence[1]), matches)
+    return Night(name, kind, truth.seed, np.vstack(rows), np.concatenate(labels), links)
 
 
 def run_params(results: Path) -> ProcessParams:
@@ -190,8 +204,9 @@ def train(
     threshold: float | None = None,
     folds: int = 4,
 ) -> tuple[EvidenceModel, dict[str, Any]]:
-    """Fit the evidence model on `nights`; its threshold (unless given) and the figures
-    of its card come from out-of-fold predictions (folds of whole seeds).
+    """Fit the evidence model's two passes on `nights`; its threshold (unless given) and
+    the figures of its card come from the second pass's out-of-fold predictions (folds
+    of whole seeds).
 
     `classifier` (file name) and `matched_sigma_px` (`TrackingParams`) say where the
     nights' candidates and probabilities came from; the card records both.
@@ -206,21 +221,22 @@ def train(
     is_flash = np.concatenate([n.is_flash for n in nights])
     seeds = np.concatenate([np.full(len(n.is_flash), n.seed) for n in nights])
     kind = np.concatenate([np.full(len(n.is_flash), n.kind) for n in nights])
-    oof = np.full(len(rows), np.nan)
-    for train_rows, test_rows in grouped_folds(seeds, is_flash, min(folds, len(set(seeds))), seed):
-        oof[test_rows] = fit_trees(rows[train_rows], is_flash[train_rows], seed).predict_proba(
-            rows[test_rows]
-        )
+    links = stacked_links([n.links for n in nights])
+    split = grouped_folds(seeds, is_flash, min(folds, len(set(seeds))), seed)
+    first = out_of_fold(rows, is_flash, split, seed)
+    relayed = np.column_stack([rows, relayed_probabilities(first, links)])
+    second = out_of_fold(relayed, is_flash, split, seed)
     chosen_by = "given" if threshold is not None else "largest out-of-fold F1"
     if threshold is None:
-        threshold = best_f1_threshold(oof, is_flash)
+        threshold = best_f1_threshold(second, is_flash)
     figures = {
-        name: operating_point(oof[kind == name], is_flash[kind == name], threshold)
+        name: operating_point(second[kind == name], is_flash[kind == name], threshold)
         for name in sorted(set(kind))
     }
     card = {
         "name": "evidence_trees",
-        "kind": "gradient-boosted trees over pipeline.evidence_features.FEATURES",
+        "kind": "gradient-boosted trees over pipeline.evidence_features.FEATURES, then a "
+        "second pass over them and RELAYED",
         "boosting": BOOSTING,
         "seed": seed,
         "matched_sigma_px": matched_sigma_px,
@@ -229,6 +245,46 @@ def train(
         "n_flashes": int(is_flash.sum()),
         "threshold_chosen_by": chosen_by,
         "out_of_fold_at_threshold": figures,
+        "first_pass_out_of_fold_at_threshold": operating_point(first, is_flash, threshold),
     }
-    model = EvidenceModel(fit_trees(rows, is_flash, seed), threshold, classifier, card)
+    model = EvidenceModel(
+        fit_trees(rows, is_flash, seed),
+        threshold,
+        classifier,
+        card,
+        second=fit_trees(relayed, is_flash, seed),
+    )
     return model, figures
+
+
+def out_of_fold(
+    rows: NDArray[np.float64],
+    is_flash: NDArray[np.bool_],
+    split: Sequence[tuple[NDArray[np.intp], NDArray[np.intp]]],
+    seed: int,
+) -> NDArray[np.float64]:
+    """Each row's flash probability from trees fitted on the other folds' rows."""
+    probability = np.full(len(rows), np.nan)
+    for train_rows, test_rows in split:
+        trees = fit_trees(rows[train_rows], is_flash[train_rows], seed)
+        probability[test_rows] = trees.predict_proba(rows[test_rows])
+    return probability
+
+
+def stacked_links(links: Sequence[CandidateLinks]) -> CandidateLinks:
+    """The links of several nights' rows stacked in order (labels and rows shifted)."""
+    sizes = np.array([len(n.partner) for n in links], dtype=np.intp)
+    row_offset = np.cumsum(np.r_[0, sizes[:-1]])
+    curves = [int(n.light_curve.max()) + 1 if len(n.light_curve) else 0 for n in links]
+    curve_offset = np.cumsum(np.r_[0, curves[:-1]])
+    return CandidateLinks(
+        light_curve=np.concatenate(
+            [n.light_curve + c for n, c in zip(links, curve_offset, strict=True)]
+        ).astype(np.intp),
+        partner=np.concatenate(
+            [
+                np.where(n.partner >= 0, n.partner + r, -1)
+                for n, r in zip(links, row_offset, strict=True)
+            ]
+        ).astype(np.intp),
+    )

@@ -12,8 +12,12 @@ from pipeline.detections import Detections
 from pipeline.evidence_features import (
     CROWD_BLOCK_S,
     FEATURES,
+    RELAYED,
+    CandidateLinks,
     as_strong_per_frame,
     candidate_features,
+    candidate_links,
+    relayed_probabilities,
     stereo_matches,
 )
 from pipeline.geometry import Pose, bearing_to_pixel
@@ -205,3 +209,32 @@ def test_the_crowd_of_a_candidate_is_a_feature() -> None:
     rows, _ = _features(candidates, evidence, 30.0)
     expected = as_strong_per_frame(candidates[0].frame, candidates[0].snr, 30.0)
     np.testing.assert_allclose(_col(rows, "as_strong_per_frame_log"), np.log(expected))
+
+
+def test_links_join_both_cameras_rows_by_light_curve_and_stereo_match() -> None:
+    track = np.array([[4.0 + 0.02 * i, 3.0, 1.0] for i in range(3)])
+    lone = np.array([[-2.0, -5.0, 0.5]])
+    det1, ev1 = _camera([10, 11, 12, 40], np.vstack([track, lone]), [9, 9, 9, 9], [0.9] * 4, 1)
+    det2, ev2 = _camera([10, 11, 12], track, [9, 9, 9], [0.9] * 3, 2)
+    matches = stereo_matches((det1, det2), 0, POSE, WIDTH, SEPARATION, GATES)
+    links = candidate_links((ev1, ev2), matches)
+    assert links.partner.tolist() == [4, 5, 6, -1, 0, 1, 2]
+    curve = links.light_curve
+    assert len(set(curve[:3])) == 1 and len(set(curve[4:])) == 1  # one light curve each
+    assert len(set(curve[[0, 3, 4]])) == 3  # distinct across cameras and spots
+
+
+def test_relayed_probabilities_carry_the_best_of_a_light_curve_and_of_its_match() -> None:
+    # Camera 1: rows 0-2 one light curve (label 0), row 3 alone (label 1); camera 2:
+    # rows 4-5 one light curve (label 2), matched with rows 1 and 2.
+    links = CandidateLinks(
+        light_curve=np.array([0, 0, 0, 1, 2, 2]), partner=np.array([-1, 4, 5, -1, 1, 2])
+    )
+    p = np.array([0.2, 0.3, 0.9, 0.6, 0.4, 0.1])
+    out = relayed_probabilities(p, links)
+    assert out.shape == (6, len(RELAYED))
+    partner, curve, pair = out.T
+    np.testing.assert_array_equal(partner, [np.nan, 0.4, 0.1, np.nan, 0.3, 0.9])
+    np.testing.assert_array_equal(curve, [0.9, 0.9, 0.9, 0.6, 0.4, 0.4])
+    # Row 0 is unmatched in its frame, but its light curve is matched with label 2.
+    np.testing.assert_array_equal(pair, [0.4, 0.4, 0.4, np.nan, 0.9, 0.9])

@@ -10,7 +10,7 @@ import pytest
 from pipeline.acceptance import Evidence, Verdict, spot_chains, steady_frames
 from pipeline.classify import DEFAULT_MODEL_NAME
 from pipeline.detections import Detections
-from pipeline.evidence_features import FEATURES, stereo_matches
+from pipeline.evidence_features import FEATURES, RELAYED, CandidateLinks, stereo_matches
 from pipeline.evidence_model import (
     DEFAULT_EVIDENCE_MODEL,
     EvidenceModel,
@@ -82,6 +82,51 @@ def test_a_model_written_and_read_back_keeps_its_features(tmp_path) -> None:
     assert copy.features == model.features and copy.threshold == model.threshold
     rows = np.random.default_rng(0).normal(size=(20, len(FEATURES)))
     np.testing.assert_array_equal(copy.probability(rows), model.probability(rows))
+
+
+def _stump(column: int, n_features: int, cut: float) -> TreeEnsemble:
+    """One split: left (log-odds -2) at or below `cut` on `column`, right +2."""
+    return TreeEnsemble(
+        feature=np.array([column, -1, -1]),
+        threshold=np.array([cut, 0.0, 0.0]),
+        missing_left=np.ones(3, bool),
+        left=np.array([1, 1, 2]),
+        right=np.array([2, 1, 2]),
+        value=np.array([0.0, -2.0, 2.0]),
+        roots=np.array([0]),
+        baseline=0.0,
+        n_features=n_features,
+    )
+
+
+def test_a_second_pass_reads_what_the_first_thought_of_the_linked_candidates(tmp_path) -> None:
+    # First pass: probability > 0.5. Second: the best first-pass probability along
+    # the light curve (the relayed column after the one feature) > 0.5.
+    model = EvidenceModel(
+        _stump(0, 1, 0.5),
+        0.5,
+        DEFAULT_MODEL_NAME,
+        {},
+        features=("probability",),
+        second=_stump(1 + RELAYED.index("light_curve_flash_probability"), 1 + len(RELAYED), 0.5),
+    )
+    rows = np.full((3, len(FEATURES)), 0.2)
+    rows[2, FEATURES.index("probability")] = 0.9
+    one_curve = CandidateLinks(light_curve=np.array([0, 0, 1]), partner=np.full(3, -1))
+    apart = CandidateLinks(light_curve=np.array([0, 1, 2]), partner=np.full(3, -1))
+    first = model.probability(rows)
+    assert first[0] < 0.5 < first[2]
+    # Row 1 shares row 0's dim light curve; sharing row 2's, both are lifted.
+    lifted = CandidateLinks(light_curve=np.array([0, 1, 1]), partner=np.full(3, -1))
+    assert (model.probability(rows, one_curve) >= 0.5).tolist() == [False, False, True]
+    assert (model.probability(rows, apart) >= 0.5).tolist() == [False, False, True]
+    assert (model.probability(rows, lifted) >= 0.5).tolist() == [False, True, True]
+    model.to_json(tmp_path / "two.json")
+    back = EvidenceModel.load(tmp_path / "two.json")
+    assert back.second is not None
+    np.testing.assert_array_equal(back.probability(rows, lifted), model.probability(rows, lifted))
+    with pytest.raises(ValueError, match="second pass reads 1 columns"):
+        EvidenceModel(_stump(0, 1, 0.5), 0.5, "m", {}, ("probability",), _stump(0, 1, 0.5))
 
 
 def test_the_rules_decide_without_the_models_classifier() -> None:
