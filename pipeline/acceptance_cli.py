@@ -20,9 +20,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "train-acceptance",
         help="fit the evidence model (final acceptance) on simulated nights with ground truth",
         description="Fit the evidence model (pipeline.evidence_model) on the candidates of "
-        "the runs listed in eval-detection JSON files, choose its threshold on "
-        "out-of-fold predictions (folds of whole seeds) and write the model file. Needs "
-        "the train extra (scikit-learn).",
+        "the runs listed in eval-detection JSON files: a first pass, then a second that "
+        "also reads the first's out-of-fold probabilities of each candidate's light curve "
+        "and stereo match. Choose its threshold on the second pass's out-of-fold "
+        "predictions (folds of whole seeds) and write the model file. Needs the train "
+        "extra (scikit-learn).",
     )
     parser.add_argument(
         "--runs", type=Path, nargs="+", required=True, metavar="JSON", help="eval-detection --json"
@@ -84,5 +86,10 @@ def _train_acceptance(args: argparse.Namespace) -> int:
             for v in (f["precision"], f["recall_of_candidates"])
         )
         print(f"{name:26s} {f['accepted']:9d} {f['true']:7d} {precision:>9s} {recall:>7s}")
+    first = model.card["first_pass_out_of_fold_at_threshold"]
+    print(
+        f"{'(first pass alone, all)':26s} {first['accepted']:9d} {first['true']:7d} "
+        f"{first['precision']:9.3f} {first['recall_of_candidates']:7.3f}"
+    )
     print(f"wrote {args.out}")
     return 0
