@@ -41,21 +41,25 @@ def test_the_shipped_model_reads_this_releases_features() -> None:
     assert model.trees.depth <= 6
 
 
-def test_a_model_reads_its_own_columns_of_the_features() -> None:
-    # One split on the model's first column, which is FEATURES' "probability": a model
-    # trained before the other features existed.
-    stump = TreeEnsemble(
-        feature=np.array([0, -1, -1]),
-        threshold=np.array([0.5, 0.0, 0.0]),
-        missing_left=np.zeros(3, bool),
+def _stump(column: int, n_features: int, cut: float) -> TreeEnsemble:
+    """One split: left (log-odds -2) at or below `cut` on `column`, right +2."""
+    return TreeEnsemble(
+        feature=np.array([column, -1, -1]),
+        threshold=np.array([cut, 0.0, 0.0]),
+        missing_left=np.ones(3, bool),
         left=np.array([1, 1, 2]),
         right=np.array([2, 1, 2]),
         value=np.array([0.0, -2.0, 2.0]),
         roots=np.array([0]),
         baseline=0.0,
-        n_features=1,
+        n_features=n_features,
     )
-    model = EvidenceModel(stump, 0.5, DEFAULT_MODEL_NAME, {}, features=("probability",))
+
+
+def test_a_model_reads_its_own_columns_of_the_features() -> None:
+    # One split on the model's first column, which is FEATURES' "probability": a model
+    # trained before the other features existed.
+    model = EvidenceModel(_stump(0, 1, 0.5), 0.5, DEFAULT_MODEL_NAME, {}, features=("probability",))
     rows = np.full((3, len(FEATURES)), 0.2)
     rows[1, [i for i, name in enumerate(FEATURES) if name != "probability"]] = 50.0
     rows[2, FEATURES.index("probability")] = 0.9
@@ -82,21 +86,6 @@ def test_a_model_written_and_read_back_keeps_its_features(tmp_path) -> None:
     assert copy.features == model.features and copy.threshold == model.threshold
     rows = np.random.default_rng(0).normal(size=(20, len(FEATURES)))
     np.testing.assert_array_equal(copy.probability(rows), model.probability(rows))
-
-
-def _stump(column: int, n_features: int, cut: float) -> TreeEnsemble:
-    """One split: left (log-odds -2) at or below `cut` on `column`, right +2."""
-    return TreeEnsemble(
-        feature=np.array([column, -1, -1]),
-        threshold=np.array([cut, 0.0, 0.0]),
-        missing_left=np.ones(3, bool),
-        left=np.array([1, 1, 2]),
-        right=np.array([2, 1, 2]),
-        value=np.array([0.0, -2.0, 2.0]),
-        roots=np.array([0]),
-        baseline=0.0,
-        n_features=n_features,
-    )
 
 
 def test_a_second_pass_reads_what_the_first_thought_of_the_linked_candidates(tmp_path) -> None:
