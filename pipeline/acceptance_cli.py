@@ -31,7 +31,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--out", type=Path, required=True, metavar="FILE", help="model JSON")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument(
+    cut = parser.add_mutually_exclusive_group()
+    cut.add_argument(
         "--threshold",
         type=float,
         default=None,
@@ -39,6 +40,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="keep this flash-probability cut (e.g. the shipped model's) instead of the one "
         "of largest out-of-fold F1, which moves with the mix of nights: many easy nights "
         "pull it down",
+    )
+    cut.add_argument(
+        "--false-as-first-pass-at",
+        type=float,
+        default=None,
+        metavar="P",
+        help="cut where the two passes accept, out of fold, as many false candidates as the "
+        "first pass alone at P: a one-pass operating point's false count, kept",
     )
     parser.add_argument(
         "--classifier",
@@ -74,7 +83,14 @@ def _train_acceptance(args: argparse.Namespace) -> int:
         print(f"error: {error}", file=sys.stderr)
         return 2
     classifier = args.classifier or DEFAULT_MODEL_NAME
-    model, figures = train(nights, classifier, matched_sigma_px, args.seed, args.threshold)
+    model, figures = train(
+        nights,
+        classifier,
+        matched_sigma_px,
+        args.seed,
+        args.threshold,
+        first_pass_cut=args.false_as_first_pass_at,
+    )
     args.out.parent.mkdir(parents=True, exist_ok=True)
     model.to_json(args.out)
     chosen = model.card["threshold_chosen_by"]

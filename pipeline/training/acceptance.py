@@ -181,6 +181,16 @@ def best_f1_threshold(probability: NDArray[np.float64], is_flash: NDArray[np.boo
     return float(probability[order][best])
 
 
+def equal_false_threshold(
+    probability: NDArray[np.float64], is_flash: NDArray[np.bool_], n_false: int
+) -> float:
+    """The lowest probability cut that accepts at most `n_false` of the false rows."""
+    false = np.sort(probability[~is_flash])[::-1]
+    if n_false >= len(false):
+        return 0.0
+    return float(np.nextafter(false[n_false], np.inf))
+
+
 def operating_point(
     probability: NDArray[np.float64], is_flash: NDArray[np.bool_], threshold: float
 ) -> dict[str, float | int]:
@@ -203,10 +213,15 @@ def train(
     seed: int = 0,
     threshold: float | None = None,
     folds: int = 4,
+    first_pass_cut: float | None = None,
 ) -> tuple[EvidenceModel, dict[str, Any]]:
-    """Fit the evidence model's two passes on `nights`; its threshold (unless given) and
-    the figures of its card come from the second pass's out-of-fold predictions (folds
-    of whole seeds).
+    """Fit the evidence model's two passes on `nights`; its threshold and the figures of
+    its card come from the second pass's out-of-fold predictions (folds of whole seeds).
+
+    The threshold is `threshold` if given; else, with `first_pass_cut`, the lowest cut at
+    which the second pass accepts no more false candidates than the first pass alone at
+    `first_pass_cut` (a retrained model keeps an operating point's false count); else
+    the cut of largest F1.
 
     `classifier` (file name) and `matched_sigma_px` (`TrackingParams`) say where the
     nights' candidates and probabilities came from; the card records both.
@@ -226,8 +241,16 @@ def train(
     first = out_of_fold(rows, is_flash, split, seed)
     relayed = np.column_stack([rows, relayed_probabilities(first, links)])
     second = out_of_fold(relayed, is_flash, split, seed)
-    chosen_by = "given" if threshold is not None else "largest out-of-fold F1"
-    if threshold is None:
+    if threshold is not None:
+        chosen_by = "given"
+    elif first_pass_cut is not None:
+        chosen_by = f"the first pass's out-of-fold false count at {first_pass_cut:g}"
+        n_false = operating_point(first, is_flash, first_pass_cut)
+        threshold = equal_false_threshold(
+            second, is_flash, int(n_false["accepted"]) - int(n_false["true"])
+        )
+    else:
+        chosen_by = "largest out-of-fold F1"
         threshold = best_f1_threshold(second, is_flash)
     figures = {
         name: operating_point(second[kind == name], is_flash[kind == name], threshold)

@@ -12,6 +12,7 @@ from pipeline.training.acceptance import (
     Night,
     best_f1_threshold,
     common_matched_filter,
+    equal_false_threshold,
     stacked_links,
     train,
 )
@@ -107,6 +108,29 @@ def test_the_second_pass_learns_what_a_light_curve_shares() -> None:
         for links in (None, test.links)  # the first pass alone, then both
     ]
     assert right[1] > right[0] + 0.05, right
+
+
+def test_the_equal_false_cut_accepts_at_most_that_many_false_rows() -> None:
+    p = np.array([0.9, 0.8, 0.8, 0.7, 0.6, 0.3])
+    is_flash = np.array([True, False, False, True, False, True])
+    assert equal_false_threshold(p, is_flash, 0) > 0.8 >= equal_false_threshold(p, is_flash, 2)
+    assert equal_false_threshold(p, is_flash, 1) > 0.8  # the tie at 0.8 is two, not one
+    assert 0.6 < equal_false_threshold(p, is_flash, 2) <= 0.7
+    assert equal_false_threshold(p, is_flash, 3) == 0.0  # every row
+
+
+def test_a_retrained_model_can_keep_the_first_passs_false_count() -> None:
+    rng = np.random.default_rng(3)
+    nights = [_linked_night(s, rng) for s in (1, 2, 3)]
+    model, _ = train(nights, "m.onnx", 1.0, folds=3, first_pass_cut=0.5)
+    card = model.card
+    assert card["threshold_chosen_by"] == "the first pass's out-of-fold false count at 0.5"
+    kept = train(nights, "m.onnx", 1.0, folds=3, threshold=0.5)[0].card
+    first = kept["first_pass_out_of_fold_at_threshold"]
+    both = sum(f["accepted"] - f["true"] for f in card["out_of_fold_at_threshold"].values())
+    assert both <= first["accepted"] - first["true"]
+    # ...and finds more flashes for them: what the light curve shares is worth it.
+    assert sum(f["true"] for f in card["out_of_fold_at_threshold"].values()) > first["true"]
 
 
 def test_nights_links_stack_without_joining_them() -> None:
