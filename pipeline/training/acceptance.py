@@ -245,10 +245,9 @@ def train(
         chosen_by = "given"
     elif first_pass_cut is not None:
         chosen_by = f"the first pass's out-of-fold false count at {first_pass_cut:g}"
-        n_false = operating_point(first, is_flash, first_pass_cut)
-        threshold = equal_false_threshold(
-            second, is_flash, int(n_false["accepted"]) - int(n_false["true"])
-        )
+        kept = operating_point(first, is_flash, first_pass_cut)
+        n_false = int(kept["accepted"]) - int(kept["true"])
+        threshold = equal_false_threshold(second, is_flash, n_false)
     else:
         chosen_by = "largest out-of-fold F1"
         threshold = best_f1_threshold(second, is_flash)
