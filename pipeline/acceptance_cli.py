@@ -96,16 +96,12 @@ def _train_acceptance(args: argparse.Namespace) -> int:
     chosen = model.card["threshold_chosen_by"]
     print(f"threshold {model.threshold:.3f} ({chosen}); out of fold at it:")
     print(f"{'nights':26s} {'accepted':>9s} {'true':>7s} {'precision':>9s} {'recall':>7s}")
-    for name, f in figures.items():
+    first = model.card["first_pass_out_of_fold_at_threshold"]
+    for name, f in [*figures.items(), ("(first pass alone, all)", first)]:
         precision, recall = (
             "-" if math.isnan(v) else f"{v:.3f}"
             for v in (f["precision"], f["recall_of_candidates"])
         )
         print(f"{name:26s} {f['accepted']:9d} {f['true']:7d} {precision:>9s} {recall:>7s}")
-    first = model.card["first_pass_out_of_fold_at_threshold"]
-    print(
-        f"{'(first pass alone, all)':26s} {first['accepted']:9d} {first['true']:7d} "
-        f"{first['precision']:9.3f} {first['recall_of_candidates']:7.3f}"
-    )
     print(f"wrote {args.out}")
     return 0
