@@ -41,11 +41,12 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial import cKDTree
 
 from pipeline.acceptance import Evidence, Verdict, light_curve_pairs, steady_frames
 from pipeline.detections import Detections
 from pipeline.flicker import candidate_duty, spot_tree
-from pipeline.geometry import Pose
+from pipeline.geometry import Pose, pixel_to_bearing
 from pipeline.params import FlickerParams, TriangulationParams
 from pipeline.triangulate import triangulate
 
@@ -89,7 +90,21 @@ RELAYED: tuple[str, ...] = (
     "partner_flash_probability",
     "light_curve_flash_probability",
     "pair_flash_probability",
+    "neighbour_flash_probability",
 )
+#: The `RELAYED` columns of second passes trained before the neighbours' was relayed.
+FIRST_RELAYED: tuple[str, ...] = RELAYED[:3]
+
+#: A firefly flashes again a few degrees from where it flashed, within seconds; light
+#: curves nearer in time are the same flash, or its spot's clutter
+#: (``neighbour_flash_probability``; chosen out of fold on the tuning nights,
+#: docs/detection.md).
+NEIGHBOUR_RADIUS_DEG = 6.0
+NEIGHBOUR_WINDOW_S = 3.0
+NEIGHBOUR_MIN_GAP_S = 0.2
+#: Light curves a first pass thinks less likely than this are not relayed as neighbours
+#: (a windy night holds tens of thousands of clutter curves; none of them vouches).
+NEIGHBOUR_MIN_PROBABILITY = 0.1
 
 
 @dataclass(frozen=True)
@@ -153,13 +168,29 @@ class CandidateLinks:
         across the cameras.
     partner : ndarray of intp
         Row of its stereo match in the other camera (`StereoMatches`), -1 if unmatched.
+    sequence : ndarray of intp
+        The recording each row was seen in (0 for camera 1, 1 for camera 2; nights
+        stacked for training add 2 a night): rows of two sequences are never neighbours.
+    time_s : ndarray of float64
+        The row's frame in seconds from the start of its recording.
+    bearing : ndarray of float64, shape (N, 3)
+        The row's unit bearing in its camera's coordinates.
     """
 
     light_curve: NDArray[np.intp]
     partner: NDArray[np.intp]
+    sequence: NDArray[np.intp]
+    time_s: NDArray[np.float64]
+    bearing: NDArray[np.float64]
 
 
-def candidate_links(evidence: tuple[Evidence, Evidence], matches: StereoMatches) -> CandidateLinks:
+def candidate_links(
+    candidates: tuple[Detections, Detections],
+    evidence: tuple[Evidence, Evidence],
+    matches: StereoMatches,
+    width: int,
+    fps: float,
+) -> CandidateLinks:
     """`CandidateLinks` of both cameras' candidates from their evidence and matches."""
     n1, n2 = len(evidence[0]), len(evidence[1])
     offset = int(evidence[0].chain.max()) + 1 if n1 else 0
@@ -167,7 +198,13 @@ def candidate_links(evidence: tuple[Evidence, Evidence], matches: StereoMatches)
     partner = np.full(n1 + n2, -1, dtype=np.intp)
     partner[matches.index1] = matches.index2 + n1
     partner[matches.index2 + n1] = matches.index1
-    return CandidateLinks(light_curve, partner)
+    return CandidateLinks(
+        light_curve,
+        partner,
+        sequence=np.repeat(np.arange(2, dtype=np.intp), [n1, n2]),
+        time_s=np.concatenate([c.frame for c in candidates]).astype(np.float64) / fps,
+        bearing=np.vstack([pixel_to_bearing(c.x, c.y, width) for c in candidates]).reshape(-1, 3),
+    )
 
 
 def relayed_probabilities(
@@ -183,7 +220,10 @@ def relayed_probabilities(
     * ``partner_flash_probability``: the stereo match's first-pass probability;
     * ``light_curve_flash_probability``: the largest one along its own light curve;
     * ``pair_flash_probability``: the largest ``light_curve_flash_probability`` of the
-      other camera's light curves its light curve is matched with.
+      other camera's light curves its light curve is matched with;
+    * ``neighbour_flash_probability``: the largest ``light_curve_flash_probability`` of
+      the same camera's other light curves that a firefly could have flashed before or
+      after it (`neighbour_probabilities`).
 
     Parameters
     ----------
@@ -209,6 +249,61 @@ def relayed_probabilities(
     pair_best = np.full(n_curves, np.nan)
     np.fmax.at(pair_best, curve[matched], curve_best[curve[partner]])
     out[:, 2] = pair_best[curve]
+    out[:, 3] = neighbour_probabilities(p, curve_best, links)[curve]
+    return out
+
+
+def neighbour_probabilities(
+    probability: NDArray[np.float64], curve_best: NDArray[np.float64], links: CandidateLinks
+) -> NDArray[np.float64]:
+    """Per light curve, the best probability of the same recording's light curves that
+    could be the same firefly's flashes before or after it.
+
+    A flash in front of swaying leaves looks like their clutter, but the firefly that
+    made it flashes again every few seconds, a few degrees away, often where nothing
+    hides it. Two light curves are neighbours when their best rows (the most probable)
+    lie within `NEIGHBOUR_RADIUS_DEG` of each other and the time between them (from the
+    end of one to the start of the other) is `NEIGHBOUR_MIN_GAP_S` to
+    `NEIGHBOUR_WINDOW_S`. Only curves of at least `NEIGHBOUR_MIN_PROBABILITY` are
+    relayed.
+
+    Parameters
+    ----------
+    probability : ndarray, shape (N,)
+        First-pass flash probability of each row.
+    curve_best : ndarray, shape (C,)
+        The largest probability of each light curve (labels of ``links.light_curve``).
+    links : CandidateLinks
+        The rows' light curves, recordings, times and bearings.
+
+    Returns
+    -------
+    ndarray, shape (C,)
+        NaN where no neighbour is relayed.
+    """
+    curve = links.light_curve
+    out = np.full(len(curve_best), np.nan)
+    if len(curve) == 0:
+        return out
+    order = np.lexsort((probability, curve))
+    best_row = order[np.r_[curve[order][1:] != curve[order][:-1], True]]
+    start = np.full(len(curve_best), np.inf)
+    np.minimum.at(start, curve, links.time_s)
+    end = np.full(len(curve_best), -np.inf)
+    np.maximum.at(end, curve, links.time_s)
+    # Recordings 10 apart on a fourth axis: bearings are unit vectors, never that far.
+    place = np.column_stack([links.bearing[best_row], 10.0 * links.sequence[best_row]])
+    relayed = curve_best[curve[best_row]] >= NEIGHBOUR_MIN_PROBABILITY
+    if not relayed.any():
+        return out
+    chord = 2.0 * np.sin(np.radians(NEIGHBOUR_RADIUS_DEG) / 2.0)
+    near = cKDTree(place[relayed]).query_ball_point(place, chord)
+    counts = np.fromiter((len(n) for n in near), np.intp, len(near))
+    to = curve[np.repeat(best_row, counts)]
+    src = curve[best_row[relayed]][np.concatenate([np.asarray(n, np.intp) for n in near])]
+    gap = np.maximum(start[src] - end[to], start[to] - end[src])
+    keep = (gap >= NEIGHBOUR_MIN_GAP_S) & (gap <= NEIGHBOUR_WINDOW_S)
+    np.fmax.at(out, to[keep], curve_best[src[keep]])
     return out
 
 

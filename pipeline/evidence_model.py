@@ -38,6 +38,7 @@ from pipeline.acceptance import Evidence, Verdict
 from pipeline.detections import Detections
 from pipeline.evidence_features import (
     FEATURES,
+    FIRST_RELAYED,
     RELAYED,
     CandidateLinks,
     StereoMatches,
@@ -74,9 +75,12 @@ class EvidenceModel:
         The `FEATURES` it reads, in its trees' column order: a release may compute more
         than a model was trained on, so a new kind of evidence does not retire a model.
     second : TreeEnsemble or None
-        A second pass over the same columns followed by `RELAYED`: the first pass's
+        A second pass over the same columns followed by `relayed`: the first pass's
         probabilities of the candidates linked to each (its light curve, its stereo
-        match). None: the first pass decides (models of earlier releases).
+        match, its firefly's other flashes). None: the first pass decides (models of
+        earlier releases).
+    relayed : tuple of str
+        The `RELAYED` columns its second pass reads, in order.
     """
 
     trees: TreeEnsemble
@@ -85,6 +89,7 @@ class EvidenceModel:
     card: dict[str, Any]
     features: tuple[str, ...] = FEATURES
     second: TreeEnsemble | None = None
+    relayed: tuple[str, ...] = RELAYED
 
     def __post_init__(self) -> None:
         unknown = [name for name in self.features if name not in FEATURES]
@@ -93,10 +98,13 @@ class EvidenceModel:
                 f"the evidence model reads features {list(self.features)} over "
                 f"{self.trees.n_features} columns; this release computes {list(FEATURES)}"
             )
-        if self.second is not None and self.second.n_features != len(self.features) + len(RELAYED):
+        unknown = [name for name in self.relayed if name not in RELAYED]
+        columns = len(self.features) + len(self.relayed)
+        if self.second is not None and (unknown or self.second.n_features != columns):
             raise ValueError(
                 f"the evidence model's second pass reads {self.second.n_features} columns, "
-                f"not its {len(self.features)} features and {len(RELAYED)} relayed ones"
+                f"not its {len(self.features)} features and relayed {list(self.relayed)}; "
+                f"this release relays {list(RELAYED)}"
             )
 
     @property
@@ -112,7 +120,7 @@ class EvidenceModel:
         card = {
             k: v
             for k, v in data.items()
-            if k not in ("trees", "second_trees", "threshold", "classifier", "features")
+            if k not in ("trees", "second_trees", "threshold", "classifier", "features", "relayed")
         }
         second = data.get("second_trees")
         try:
@@ -123,6 +131,7 @@ class EvidenceModel:
                 card=card,
                 features=tuple(data.get("features", ())),
                 second=None if second is None else TreeEnsemble.from_dict(second),
+                relayed=tuple(data.get("relayed", FIRST_RELAYED)),
             )
         except ValueError as exc:
             raise ValueError(f"{path}: {exc}") from None
@@ -132,6 +141,7 @@ class EvidenceModel:
         card = {
             **self.card,
             "features": list(self.features),
+            "relayed": list(self.relayed),
             "threshold": self.threshold,
             "classifier": self.classifier,
         }
@@ -156,8 +166,9 @@ class EvidenceModel:
         first = self.trees.predict_proba(own)
         if self.second is None or links is None:
             return first
+        relayed = relayed_probabilities(first, links)
         return self.second.predict_proba(
-            np.column_stack([own, relayed_probabilities(first, links)])
+            np.column_stack([own, relayed[:, [RELAYED.index(name) for name in self.relayed]]])
         )
 
 
@@ -235,7 +246,9 @@ def weigh(
     model's)."""
     rows = candidate_features(candidates, evidence, matches, width, fps, flicker)
     cut = model.threshold if threshold is None else threshold
-    p = model.probability(np.vstack(rows), candidate_links(evidence, matches))
+    p = model.probability(
+        np.vstack(rows), candidate_links(candidates, evidence, matches, width, fps)
+    )
     p1, p2 = p[: len(rows[0])], p[len(rows[0]) :]
     matched = [np.zeros(len(c), bool) for c in candidates]
     matched[0][matches.index1] = True

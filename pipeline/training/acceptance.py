@@ -112,7 +112,9 @@ def night_rows(results: Path, truth: GroundTruth, params: ProcessParams) -> Nigh
     labels = [match_detections(candidates[c], truth, c + 1).true_detection for c in (0, 1)]
     kind = f"{truth.scenario} {truth.width}px {truth.fps:g}fps"
     name = f"{truth.scenario} s{truth.seed} {truth.width}px {truth.fps:g}fps"
-    links = candidate_links((evidence[0], evidence[1]), matches)
+    links = candidate_links(
+        pair, (evidence[0], evidence[1]), matches, calibration.width, calibration.fps
+    )
     return Night(name, kind, truth.seed, np.vstack(rows), np.concatenate(labels), links)
 
 
@@ -167,7 +169,10 @@ def fit_trees(rows: NDArray[np.float64], is_flash: NDArray[np.bool_], seed: int)
     from sklearn.ensemble import HistGradientBoostingClassifier
 
     model = HistGradientBoostingClassifier(**BOOSTING, random_state=seed)
-    return to_ensemble(model.fit(rows, is_flash))
+    # scikit-learn cannot bin a column without a single value (nights where no light
+    # curve has a neighbour); it has nothing to split on either way.
+    empty = np.isnan(rows).all(axis=0)
+    return to_ensemble(model.fit(np.where(empty, 0.0, rows), is_flash))
 
 
 def best_f1_threshold(probability: NDArray[np.float64], is_flash: NDArray[np.bool_]) -> float:
@@ -309,4 +314,8 @@ def stacked_links(links: Sequence[CandidateLinks]) -> CandidateLinks:
                 for n, r in zip(links, row_offset, strict=True)
             ]
         ).astype(np.intp),
+        # Each night's two recordings get sequences of their own.
+        sequence=np.concatenate([n.sequence + 2 * k for k, n in enumerate(links)]).astype(np.intp),
+        time_s=np.concatenate([n.time_s for n in links]),
+        bearing=np.vstack([n.bearing for n in links]).reshape(-1, 3),
     )

@@ -12,6 +12,9 @@ from pipeline.detections import Detections
 from pipeline.evidence_features import (
     CROWD_BLOCK_S,
     FEATURES,
+    NEIGHBOUR_MIN_GAP_S,
+    NEIGHBOUR_RADIUS_DEG,
+    NEIGHBOUR_WINDOW_S,
     RELAYED,
     CandidateLinks,
     as_strong_per_frame,
@@ -22,6 +25,7 @@ from pipeline.evidence_features import (
 )
 from pipeline.geometry import Pose, bearing_to_pixel
 from pipeline.params import AcceptanceParams, FlickerParams, TriangulationParams
+from tests.pipeline.links_factory import links_apart
 
 WIDTH, SEPARATION = 640, 1.5
 POSE = Pose(np.eye(3), [1.0, 0.0, 0.0])
@@ -217,7 +221,7 @@ def test_links_join_both_cameras_rows_by_light_curve_and_stereo_match() -> None:
     det1, ev1 = _camera([10, 11, 12, 40], np.vstack([track, lone]), [9, 9, 9, 9], [0.9] * 4, 1)
     det2, ev2 = _camera([10, 11, 12], track, [9, 9, 9], [0.9] * 3, 2)
     matches = stereo_matches((det1, det2), 0, POSE, WIDTH, SEPARATION, GATES)
-    links = candidate_links((ev1, ev2), matches)
+    links = candidate_links((det1, det2), (ev1, ev2), matches, WIDTH, 30.0)
     assert links.partner.tolist() == [4, 5, 6, -1, 0, 1, 2]
     curve = links.light_curve
     assert len(set(curve[:3])) == 1 and len(set(curve[4:])) == 1  # one light curve each
@@ -227,14 +231,60 @@ def test_links_join_both_cameras_rows_by_light_curve_and_stereo_match() -> None:
 def test_relayed_probabilities_carry_the_best_of_a_light_curve_and_of_its_match() -> None:
     # Camera 1: rows 0-2 one light curve (label 0), row 3 alone (label 1); camera 2:
     # rows 4-5 one light curve (label 2), matched with rows 1 and 2.
-    links = CandidateLinks(
-        light_curve=np.array([0, 0, 0, 1, 2, 2]), partner=np.array([-1, 4, 5, -1, 1, 2])
-    )
+    links = links_apart(np.array([0, 0, 0, 1, 2, 2]), np.array([-1, 4, 5, -1, 1, 2]))
     p = np.array([0.2, 0.3, 0.9, 0.6, 0.4, 0.1])
     out = relayed_probabilities(p, links)
     assert out.shape == (6, len(RELAYED))
-    partner, curve, pair = out.T
+    partner, curve, pair, neighbour = out.T
     np.testing.assert_array_equal(partner, [np.nan, 0.4, 0.1, np.nan, 0.3, 0.9])
     np.testing.assert_array_equal(curve, [0.9, 0.9, 0.9, 0.6, 0.4, 0.4])
     # Row 0 is unmatched in its frame, but its light curve is matched with label 2.
     np.testing.assert_array_equal(pair, [0.4, 0.4, 0.4, np.nan, 0.9, 0.9])
+    assert np.isnan(neighbour).all()  # every row a minute from the others
+
+
+def _bearing(azimuth_deg: float) -> list[float]:
+    a = np.radians(azimuth_deg)
+    return [float(np.cos(a)), float(np.sin(a)), 0.0]
+
+
+def test_a_firefly_s_other_flashes_vouch_for_a_doubtful_one() -> None:
+    # One row per light curve: (recording, time s, azimuth deg, first-pass probability).
+    r, w, g = NEIGHBOUR_RADIUS_DEG, NEIGHBOUR_WINDOW_S, NEIGHBOUR_MIN_GAP_S
+    curves = [
+        (0, 1.0, 0.0, 0.9),  # 0: a confident flash
+        (0, 2.0, r / 2, 0.3),  # 1: the firefly's next flash, in doubt
+        (0, 1.0 + g / 2, 0.0, 0.5),  # 2: clutter right after flash 0: the same flash
+        (0, 2.0, 1.5 * r, 0.95),  # 3: a flash too far away
+        (1, 2.0, r / 2, 0.99),  # 4: the other camera: another recording
+        (0, 2.0, r / 2 + 0.5, 0.05),  # 5: too unlikely to vouch for anyone
+        (0, 1.0 + 1.5 * w, 0.0, 0.8),  # 6: too late
+    ]
+    sequence, time_s, azimuth, p = (np.array(c) for c in zip(*curves, strict=True))
+    n = len(curves)
+    links = CandidateLinks(
+        light_curve=np.arange(n),
+        partner=np.full(n, -1),
+        sequence=sequence.astype(np.intp),
+        time_s=time_s,
+        bearing=np.array([_bearing(a) for a in azimuth]),
+    )
+    neighbour = relayed_probabilities(p, links)[:, RELAYED.index("neighbour_flash_probability")]
+    # 1 is vouched for by 0 and by 2; 0 and 2 by 1; 5, though unlikely, by 0 and 2.
+    np.testing.assert_array_equal(neighbour, [0.3, 0.9, 0.3, np.nan, np.nan, 0.9, np.nan])
+
+
+def test_a_light_curve_is_placed_at_its_most_probable_row() -> None:
+    # Light curve 0 wanders from the confident flash's spot (row 2) to a row in doubt
+    # far away; light curve 1, a second later, is near the confident row only.
+    r = NEIGHBOUR_RADIUS_DEG
+    links = CandidateLinks(
+        light_curve=np.array([0, 0, 0, 1]),
+        partner=np.full(4, -1),
+        sequence=np.zeros(4, np.intp),
+        time_s=np.array([1.0, 1.03, 1.07, 2.0]),
+        bearing=np.array([_bearing(3 * r), _bearing(2 * r), _bearing(0.0), _bearing(r / 2)]),
+    )
+    p = np.array([0.2, 0.3, 0.9, 0.4])
+    neighbour = relayed_probabilities(p, links)[:, RELAYED.index("neighbour_flash_probability")]
+    np.testing.assert_array_equal(neighbour, [0.4, 0.4, 0.4, 0.9])

@@ -10,7 +10,7 @@ import pytest
 from pipeline.acceptance import Evidence, Verdict, spot_chains, steady_frames
 from pipeline.classify import DEFAULT_MODEL_NAME
 from pipeline.detections import Detections
-from pipeline.evidence_features import FEATURES, RELAYED, CandidateLinks, stereo_matches
+from pipeline.evidence_features import FEATURES, FIRST_RELAYED, RELAYED, stereo_matches
 from pipeline.evidence_model import (
     DEFAULT_EVIDENCE_MODEL,
     EvidenceModel,
@@ -27,6 +27,7 @@ from pipeline.params import (
     TriangulationParams,
 )
 from pipeline.trees import TreeEnsemble
+from tests.pipeline.links_factory import links_apart
 
 WIDTH, FPS, SEPARATION = 640, 30.0, 1.5
 POSE = Pose(np.eye(3), [1.0, 0.0, 0.0])
@@ -101,12 +102,12 @@ def test_a_second_pass_reads_what_the_first_thought_of_the_linked_candidates(tmp
     )
     rows = np.full((3, len(FEATURES)), 0.2)
     rows[2, FEATURES.index("probability")] = 0.9
-    one_curve = CandidateLinks(light_curve=np.array([0, 0, 1]), partner=np.full(3, -1))
-    apart = CandidateLinks(light_curve=np.array([0, 1, 2]), partner=np.full(3, -1))
+    one_curve = links_apart(np.array([0, 0, 1]), np.full(3, -1))
+    apart = links_apart(np.array([0, 1, 2]), np.full(3, -1))
     first = model.probability(rows)
     assert first[0] < 0.5 < first[2]
     # Row 1 shares row 0's dim light curve; sharing row 2's, both are lifted.
-    lifted = CandidateLinks(light_curve=np.array([0, 1, 1]), partner=np.full(3, -1))
+    lifted = links_apart(np.array([0, 1, 1]), np.full(3, -1))
     assert (model.probability(rows, one_curve) >= 0.5).tolist() == [False, False, True]
     assert (model.probability(rows, apart) >= 0.5).tolist() == [False, False, True]
     assert (model.probability(rows, lifted) >= 0.5).tolist() == [False, True, True]
@@ -116,6 +117,30 @@ def test_a_second_pass_reads_what_the_first_thought_of_the_linked_candidates(tmp
     np.testing.assert_array_equal(back.probability(rows, lifted), model.probability(rows, lifted))
     with pytest.raises(ValueError, match="second pass reads 1 columns"):
         EvidenceModel(_stump(0, 1, 0.5), 0.5, "m", {}, ("probability",), _stump(0, 1, 0.5))
+
+
+def test_a_second_pass_of_an_earlier_release_reads_the_first_relayed_columns(tmp_path) -> None:
+    # Trained before the neighbours were relayed: its file names no relayed columns.
+    curve = FIRST_RELAYED.index("light_curve_flash_probability")
+    model = EvidenceModel(
+        _stump(0, 1, 0.5),
+        0.5,
+        DEFAULT_MODEL_NAME,
+        {},
+        features=("probability",),
+        second=_stump(1 + curve, 1 + len(FIRST_RELAYED), 0.5),
+        relayed=FIRST_RELAYED,
+    )
+    model.to_json(tmp_path / "earlier.json")
+    data = json.loads((tmp_path / "earlier.json").read_text())
+    del data["relayed"]
+    (tmp_path / "earlier.json").write_text(json.dumps(data))
+    back = EvidenceModel.load(tmp_path / "earlier.json")
+    assert back.relayed == FIRST_RELAYED
+    rows = np.full((3, len(FEATURES)), 0.2)
+    rows[2, FEATURES.index("probability")] = 0.9
+    lifted = links_apart(np.array([0, 1, 1]), np.full(3, -1))
+    assert (back.probability(rows, lifted) >= 0.5).tolist() == [False, True, True]
 
 
 def test_the_rules_decide_without_the_models_classifier() -> None:

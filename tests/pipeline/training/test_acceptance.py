@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.evidence_features import FEATURES, CandidateLinks
+from pipeline.evidence_features import FEATURES
 from pipeline.evidence_model import EvidenceModel
 from pipeline.params import ProcessParams, TrackingParams
 from pipeline.training.acceptance import (
@@ -16,6 +16,7 @@ from pipeline.training.acceptance import (
     stacked_links,
     train,
 )
+from tests.pipeline.links_factory import links_apart
 
 
 def test_the_f1_threshold_cuts_between_distinct_probabilities() -> None:
@@ -40,7 +41,7 @@ def _night(seed: int, scenario: str, rng: np.random.Generator) -> Night:
     snr = rows[:, FEATURES.index("snr_log")]
     matched = rows[:, FEATURES.index("stereo_matched")] == 1
     is_flash = (snr + 1.5 * matched + rng.normal(0, 0.1, n)) > 1.0
-    links = CandidateLinks(light_curve=np.arange(n), partner=_pairs(n))
+    links = links_apart(np.arange(n), _pairs(n))
     return Night(f"{scenario} s{seed}", scenario, seed, rows, is_flash, links)  # kind: scenario
 
 
@@ -91,7 +92,7 @@ def _linked_night(seed: int, rng: np.random.Generator) -> Night:
     curve = np.repeat(np.arange(n_curves), length)
     rows = rng.normal(size=(len(curve), len(FEATURES)))
     rows[:, FEATURES.index("snr_log")] = flash[curve] + rng.normal(0, 0.7, len(curve))
-    links = CandidateLinks(light_curve=curve, partner=_pairs(len(curve)))
+    links = links_apart(curve, _pairs(len(curve)))
     return Night(f"a s{seed}", "a", seed, rows, flash[curve], links)
 
 
@@ -134,8 +135,8 @@ def test_a_retrained_model_can_keep_the_first_passs_false_count() -> None:
 
 
 def test_nights_links_stack_without_joining_them() -> None:
-    a = CandidateLinks(light_curve=np.array([0, 0, 1]), partner=np.array([2, -1, 0]))
-    b = CandidateLinks(light_curve=np.array([0, 1]), partner=np.array([1, 0]))
+    a = links_apart(np.array([0, 0, 1]), np.array([2, -1, 0]))
+    b = links_apart(np.array([0, 1]), np.array([1, 0]))
     both = stacked_links([a, b])
     assert both.light_curve.tolist() == [0, 0, 1, 2, 3]
     assert both.partner.tolist() == [2, -1, 0, 4, 3]
