@@ -101,7 +101,7 @@ FIRST_RELAYED: tuple[str, ...] = RELAYED[:3]
 #: docs/detection.md).
 NEIGHBOUR_RADIUS_DEG = 6.0
 NEIGHBOUR_WINDOW_S = 3.0
-NEIGHBOUR_MIN_GAP_S = 0.2
+NEIGHBOUR_MIN_GAP_S = 0.3
 #: Light curves a first pass thinks less likely than this are not relayed as neighbours
 #: (a windy night holds tens of thousands of clutter curves; none of them vouches).
 NEIGHBOUR_MIN_PROBABILITY = 0.1
@@ -261,11 +261,10 @@ def neighbour_probabilities(
 
     A flash in front of swaying leaves looks like their clutter, but the firefly that
     made it flashes again every few seconds, a few degrees away, often where nothing
-    hides it. Two light curves are neighbours when their best rows (the most probable)
-    lie within `NEIGHBOUR_RADIUS_DEG` of each other and the time between them (from the
-    end of one to the start of the other) is `NEIGHBOUR_MIN_GAP_S` to
-    `NEIGHBOUR_WINDOW_S`. Only curves of at least `NEIGHBOUR_MIN_PROBABILITY` are
-    relayed.
+    hides it. Each light curve is placed at its most probable row; two are neighbours
+    when those rows lie within `NEIGHBOUR_RADIUS_DEG` of each other and
+    `NEIGHBOUR_MIN_GAP_S` to `NEIGHBOUR_WINDOW_S` apart in time. Only curves of at least
+    `NEIGHBOUR_MIN_PROBABILITY` are relayed.
 
     Parameters
     ----------
@@ -283,27 +282,29 @@ def neighbour_probabilities(
     """
     curve = links.light_curve
     out = np.full(len(curve_best), np.nan)
-    if len(curve) == 0:
-        return out
     order = np.lexsort((probability, curve))
-    best_row = order[np.r_[curve[order][1:] != curve[order][:-1], True]]
-    start = np.full(len(curve_best), np.inf)
-    np.minimum.at(start, curve, links.time_s)
-    end = np.full(len(curve_best), -np.inf)
-    np.maximum.at(end, curve, links.time_s)
-    # Recordings 10 apart on a fourth axis: bearings are unit vectors, never that far.
-    place = np.column_stack([links.bearing[best_row], 10.0 * links.sequence[best_row]])
+    best_row = order[np.r_[curve[order][1:] != curve[order][:-1], True]] if len(curve) else order
     relayed = curve_best[curve[best_row]] >= NEIGHBOUR_MIN_PROBABILITY
     if not relayed.any():
         return out
+    # Chebyshev boxes of unit half-width: the radius's chord on each axis of the bearing,
+    # the window in time; recordings 10 apart never meet. Exact distances below.
     chord = 2.0 * np.sin(np.radians(NEIGHBOUR_RADIUS_DEG) / 2.0)
-    near = cKDTree(place[relayed]).query_ball_point(place, chord)
-    counts = np.fromiter((len(n) for n in near), np.intp, len(near))
-    to = curve[np.repeat(best_row, counts)]
-    src = curve[best_row[relayed]][np.concatenate([np.asarray(n, np.intp) for n in near])]
-    gap = np.maximum(start[src] - end[to], start[to] - end[src])
-    keep = (gap >= NEIGHBOUR_MIN_GAP_S) & (gap <= NEIGHBOUR_WINDOW_S)
-    np.fmax.at(out, to[keep], curve_best[src[keep]])
+    place = np.column_stack(
+        [
+            links.bearing[best_row] / chord,
+            10.0 * links.sequence[best_row],
+            links.time_s[best_row] / NEIGHBOUR_WINDOW_S,
+        ]
+    )
+    pairs = cKDTree(place).sparse_distance_matrix(
+        cKDTree(place[relayed]), 1.0, p=np.inf, output_type="ndarray"
+    )
+    to, src = best_row[pairs["i"]], best_row[np.flatnonzero(relayed)[pairs["j"]]]
+    apart = np.abs(links.time_s[to] - links.time_s[src])
+    near = np.linalg.norm(links.bearing[to] - links.bearing[src], axis=1) <= chord
+    keep = near & (apart >= NEIGHBOUR_MIN_GAP_S) & (curve[to] != curve[src])
+    np.fmax.at(out, curve[to[keep]], curve_best[curve[src[keep]]])
     return out
 
 
