@@ -208,9 +208,11 @@ def candidate_links(
 
 
 def relayed_probabilities(
-    probability: NDArray[np.floating], links: CandidateLinks
+    probability: NDArray[np.floating],
+    links: CandidateLinks,
+    columns: tuple[str, ...] = RELAYED,
 ) -> NDArray[np.float64]:
-    """The `RELAYED` columns: what a first pass thought of the candidates linked to each.
+    """`RELAYED` columns: what a first pass thought of the candidates linked to each.
 
     A flash is one light curve in each camera, and the two are matched frame after
     frame; a first pass weighs each candidate apart, so the frames where a flash rises
@@ -230,11 +232,13 @@ def relayed_probabilities(
     probability : ndarray, shape (N,)
         First-pass flash probability of each row (camera 1's rows, then camera 2's).
     links : CandidateLinks
-        Light curves and stereo partners of the same rows.
+        Light curves, stereo partners, times and bearings of the same rows.
+    columns : tuple of str
+        The `RELAYED` columns wanted, in order (a model reads those it was trained on).
 
     Returns
     -------
-    ndarray, shape (N, len(RELAYED))
+    ndarray, shape (N, len(columns))
     """
     p = np.asarray(probability, np.float64)
     curve = links.light_curve
@@ -249,8 +253,9 @@ def relayed_probabilities(
     pair_best = np.full(n_curves, np.nan)
     np.fmax.at(pair_best, curve[matched], curve_best[curve[partner]])
     out[:, 2] = pair_best[curve]
-    out[:, 3] = neighbour_probabilities(p, curve_best, links)[curve]
-    return out
+    if "neighbour_flash_probability" in columns:  # a tree search: only when read
+        out[:, 3] = neighbour_probabilities(p, curve_best, links)[curve]
+    return out[:, [RELAYED.index(name) for name in columns]]
 
 
 def neighbour_probabilities(

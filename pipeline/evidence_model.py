@@ -166,9 +166,8 @@ class EvidenceModel:
         first = self.trees.predict_proba(own)
         if self.second is None or links is None:
             return first
-        relayed = relayed_probabilities(first, links)
         return self.second.predict_proba(
-            np.column_stack([own, relayed[:, [RELAYED.index(name) for name in self.relayed]]])
+            np.column_stack([own, relayed_probabilities(first, links, self.relayed)])
         )
 
 
