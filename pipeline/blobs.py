@@ -337,6 +337,54 @@ def upsample(
     return full[order], np.repeat(labels, bin_px * bin_px)[order]
 
 
+def _gaussian_through(
+    before: NDArray[np.float64], centre: NDArray[np.float64], after: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Vertex offset (within ±0.5 pixel) and variance (pixels²) of the Gaussian through
+    three values one pixel apart (a parabola through their logarithms).
+
+    Where a value is not positive (a dark edge beside a spot) the parabola goes through
+    the values themselves and the variance is NaN; so it is where they do not curve down.
+    """
+    positive = (before > 0) & (after > 0) & (centre > 0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lb, lc, la = (np.log(np.where(positive, v, 1.0)) for v in (before, centre, after))
+        b, c, a = (np.where(positive, lv, v) for lv, v in ((lb, before), (lc, centre), (la, after)))
+        curvature = b - 2 * c + a
+        step = 0.5 * (b - a) / curvature
+        variance = np.where(positive & (curvature < 0), -1.0 / curvature, np.nan)
+    return np.where(np.isfinite(step), np.clip(step, -0.5, 0.5), 0.0), variance
+
+
+def _cross(
+    image: NDArray[np.floating], rows: NDArray[np.intp], cols: NDArray[np.intp]
+) -> tuple[NDArray[np.float64], ...]:
+    """Values at, left of, right of, above and below each pixel (columns wrap at the
+    seam; rows beyond the poles read the pole row)."""
+    height, width = image.shape
+    return tuple(
+        image[r, c].astype(np.float64)
+        for r, c in (
+            (rows, cols),
+            (rows, (cols - 1) % width),
+            (rows, (cols + 1) % width),
+            (np.maximum(rows - 1, 0), cols),
+            (np.minimum(rows + 1, height - 1), cols),
+        )
+    )
+
+
+def to_full_resolution(
+    row: NDArray[np.float64], col: NDArray[np.float64], width: int, bin_px: int
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Sub-pixel positions in a ``bin_px``-binned image of `width` bins as ``(x, y)`` in
+    full-resolution pixels, ``x`` wrapped into ``[0, bin_px · width)``."""
+    full_width = width * bin_px
+    x = np.mod((col + 0.5) * bin_px - 0.5, full_width)
+    x[x >= full_width] -= full_width  # mod can round a tiny negative up to exactly W
+    return x, (row + 0.5) * bin_px - 0.5
+
+
 def subpixel_peak(
     image: NDArray[np.float32], peak: NDArray[np.intp], bin_px: int = 1
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -370,37 +418,128 @@ def subpixel_peak(
         Positions in full-resolution pixels, ``x`` wrapped into ``[0, b · W)``; offsets
         from the (moved) peak pixel are within ±0.5 pixel of `image`.
     """
+    spots = gaussian_spots(image, climb_to_maximum(image, np.asarray(peak, np.intp)))
+    return to_full_resolution(spots.row, spots.col, image.shape[1], bin_px)
+
+
+@dataclass(frozen=True)
+class Spots:
+    """Gaussian spots fitted at peaks of an image (`gaussian_spots`), in its pixels.
+
+    Attributes
+    ----------
+    row, col : ndarray of float64
+        Sub-pixel centre (``col`` may lie half a pixel beyond the seam).
+    var_row, var_col : ndarray of float64
+        Variance along each axis, pixels²; NaN where the values do not fall off as a
+        Gaussian's (`_gaussian_through`).
+    amplitude : ndarray of float64
+        Height at the centre.
+    """
+
+    row: NDArray[np.float64]
+    col: NDArray[np.float64]
+    var_row: NDArray[np.float64]
+    var_col: NDArray[np.float64]
+    amplitude: NDArray[np.float64]
+
+
+def gaussian_spots(
+    image: NDArray[np.floating],
+    peak: NDArray[np.intp],
+    cross: tuple[NDArray[np.float64], ...] | None = None,
+) -> Spots:
+    """A separable Gaussian through each peak pixel of `image` and its four neighbours.
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W)
+        E.g. the matched filter's response (columns wrap at the 360° seam; rows at the
+        poles keep their row).
+    peak : ndarray of int, shape (n,)
+        Flat indices of the spots' brightest pixels.
+    cross : tuple of 5 ndarrays, optional
+        The values to fit instead of `image`'s: at, left of, right of, above and below
+        each peak (e.g. `image` less the light of other spots).
+    """
     height, width = image.shape
-    rows, cols = np.divmod(_climb(image, np.asarray(peak, np.intp)), width)
-    centre = image[rows, cols].astype(np.float64)
+    rows, cols = np.divmod(np.asarray(peak, np.intp), width)
+    centre, left, right, up, down = cross if cross is not None else _cross(image, rows, cols)
+    dx, var_col = _gaussian_through(left, centre, right)
+    dy, var_row = _gaussian_through(up, centre, down)
+    at_pole = (rows == 0) | (rows == height - 1)
+    dy, var_row = np.where(at_pole, 0.0, dy), np.where(at_pole, np.nan, var_row)
+    # The fitted height at the vertex, from the peak pixel's value (a NaN term adds 0).
+    with np.errstate(invalid="ignore", divide="ignore"):
+        lift = np.nan_to_num(dx**2 / (2 * var_col)) + np.nan_to_num(dy**2 / (2 * var_row))
+    return Spots(rows + dy, cols + dx, var_row, var_col, centre * np.exp(lift))
 
-    def offset(before: NDArray[np.float64], after: NDArray[np.float64]) -> NDArray[np.float64]:
-        positive = (before > 0) & (after > 0) & (centre > 0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            lb, lc, la = (np.log(np.where(positive, v, 1.0)) for v in (before, centre, after))
-            b, c, a = (
-                np.where(positive, lv, v) for lv, v in ((lb, before), (lc, centre), (la, after))
-            )
-            step = 0.5 * (b - a) / (b - 2 * c + a)
-        return np.where(np.isfinite(step), np.clip(step, -0.5, 0.5), 0.0)
 
-    left = image[rows, (cols - 1) % width].astype(np.float64)
-    right = image[rows, (cols + 1) % width].astype(np.float64)
-    up = image[np.maximum(rows - 1, 0), cols].astype(np.float64)
-    down = image[np.minimum(rows + 1, height - 1), cols].astype(np.float64)
-    dx, dy = offset(left, right), offset(up, down)
-    dy = np.where((rows == 0) | (rows == height - 1), 0.0, dy)
-    full_width = width * bin_px
-    x = np.mod((cols + dx + 0.5) * bin_px - 0.5, full_width)
-    x[x >= full_width] -= full_width  # mod can round a tiny negative up to exactly W
-    return x, (rows + dy + 0.5) * bin_px - 0.5
+def spots_light(
+    spots: Spots,
+    spot_blob: NDArray[np.intp],
+    rows: NDArray[np.floating],
+    cols: NDArray[np.floating],
+    blob: NDArray[np.intp],
+    width: int,
+    radius: float,
+) -> NDArray[np.float64]:
+    """The light the Gaussian `spots` of a blob put at points of the same blob.
+
+    Parameters
+    ----------
+    spots : Spots
+        Spots with a variance on both axes.
+    spot_blob : ndarray of int, shape (n,)
+        The blob of each spot.
+    rows, cols : ndarray, shape (m,)
+        The points, image pixels.
+    blob : ndarray of int, shape (m,)
+        The blob of each point.
+    width : int
+        Image width: columns wrap at the 360° seam.
+    radius : float
+        Farthest a spot reaches, pixels.
+
+    Returns
+    -------
+    ndarray of float64, shape (m,)
+        The sum of the spots' values at each point.
+    """
+    out = np.zeros(len(rows))
+    if len(spots.row) == 0 or len(rows) == 0:
+        return out
+    # Blob as a third coordinate, far apart: points meet only their own blob's spots.
+    # The box is periodic on every axis, so rows and blobs get room to never wrap.
+    extent = float(max(np.max(rows), np.max(spots.row))) + radius + 2.0
+    n_blobs = int(max(np.max(blob), np.max(spot_blob))) + 1
+    box = [2.0 * extent, float(width), (n_blobs + 1) * 2.0 * extent]
+
+    def place(
+        r: NDArray[np.floating], c: NDArray[np.floating], b: NDArray[np.intp]
+    ) -> NDArray[np.float64]:
+        wrapped = np.mod(c, width)
+        wrapped[wrapped >= width] = 0.0  # mod can round a tiny negative up to exactly W
+        return np.column_stack([r, wrapped, b * 2.0 * extent]).astype(np.float64)
+
+    pairs = cKDTree(place(spots.row, spots.col, spot_blob), boxsize=box).sparse_distance_matrix(
+        cKDTree(place(rows, cols, blob), boxsize=box), radius, output_type="ndarray"
+    )
+    i, j = pairs["i"], pairs["j"]
+    dr = rows[j] - spots.row[i]
+    dc = (cols[j] - spots.col[i] + width / 2) % width - width / 2
+    light = spots.amplitude[i] * np.exp(
+        -(dr**2) / (2 * spots.var_row[i]) - dc**2 / (2 * spots.var_col[i])
+    )
+    np.add.at(out, j, light)
+    return out
 
 
 #: Pixels a peak may move uphill on the response to reach its maximum (`subpixel_peak`).
 CLIMB_STEPS = 2
 
 
-def _climb(image: NDArray[np.floating], peak: NDArray[np.intp]) -> NDArray[np.intp]:
+def climb_to_maximum(image: NDArray[np.floating], peak: NDArray[np.intp]) -> NDArray[np.intp]:
     """Each peak moved to its largest 3 × 3 neighbour while that is larger, at most
     `CLIMB_STEPS` times; a peak that has not then reached a maximum stays where it was
     (a flash on the slope of a glow must not be walked into the glow)."""

@@ -81,10 +81,12 @@ from pipeline.blobs import (
     ring_max,
     split_at_peaks,
     subpixel_peak,
+    to_full_resolution,
     trough,
     upsample,
 )
 from pipeline.chunking import frames_read
+from pipeline.crowding import CrowdedSeeds, crowded_seeds
 from pipeline.detections import Detections
 from pipeline.hollow import hollow_depth
 from pipeline.matched_filter import bin_image, binning, matched_filter
@@ -383,7 +385,7 @@ class _FrameDetector:
     ) -> tuple[Blobs, FaintPeaks]:
         idx, snr = self._extent_pixels(filtered, noise, background)
         idx, snr = self._limit_pixels(idx, snr)
-        labels, blob_snr, peak, (faint_idx, faint_snr) = self._seeded(idx, snr, filtered)
+        labels, blob_snr, peak, (faint_idx, faint_snr), crowded = self._seeded(idx, snr, filtered)
         area = np.bincount(labels[labels >= 0], minlength=len(blob_snr)) * self._bin**2
         keep = self._filter(area, blob_snr)
         inside = np.isin(labels, keep)
@@ -391,6 +393,11 @@ class _FrameDetector:
         idx, snr, labels = idx[inside], snr[inside], np.searchsorted(keep, labels[inside])
         width = self._binned[1]
         x, y = subpixel_peak(filtered, peak[keep], self._bin)
+        # Seeds beside a brighter spot are placed on their own light, not its slope.
+        own = np.flatnonzero(np.isin(peak[keep], crowded.idx))
+        if len(own):
+            at = np.searchsorted(crowded.idx, peak[keep][own])
+            x[own], y[own] = to_full_resolution(crowded.row[at], crowded.col[at], width, self._bin)
         full_idx, full_labels = upsample(idx, labels, width, self._bin)
         rows, cols = np.divmod(full_idx, luma.shape[1])
         values = luma[rows, cols] - background[rows // self._bin, cols // self._bin]
@@ -451,9 +458,10 @@ class _FrameDetector:
         NDArray[np.float64],
         NDArray[np.intp],
         tuple[NDArray[np.intp], NDArray[np.float64]],
+        _Crowded,
     ]:
         """Candidate labels of the pixels (-1: no seed), each candidate's SNR and peak,
-        and the faint peaks (flat index, SNR).
+        the faint peaks (flat index, SNR) and the seeds found beside brighter spots.
 
         A candidate is a local maximum of the SNR reaching the seed level; a blob
         holding several (two flashes side by side, a flash on a bright rim) is split
@@ -464,6 +472,8 @@ class _FrameDetector:
         A local maximum from ``lit_threshold`` up to the seed level is a faint peak: it
         neither splits a blob nor becomes a candidate (a maximum is one against every
         pixel around it, so the candidates are the same with or without faint peaks).
+        With ``deblend``, a blob of compact spots is also searched for seeds their light
+        hides (`pipeline.crowding`); such a seed's SNR is its own light's.
         """
         width = self._binned[1]
         self._pixels.assign(idx)
@@ -480,9 +490,18 @@ class _FrameDetector:
         maxima[glow_maxima] = self._standing_out(filtered, idx[glow_maxima], snr[glow_maxima])
         peaks = maxima & (snr >= threshold)
         faint = np.flatnonzero(maxima & (snr < threshold))
+        crowded = CrowdedSeeds.empty()
+        if self._params.deblend:
+            crowded = crowded_seeds(
+                self._pixels, idx, snr, filtered, blobs, peaks & ~in_glow, threshold, self._bin
+            )
+        peaks[crowded.at] = True
+        seed_snr = snr.copy()
+        seed_snr[crowded.at] = crowded.snr
         labels = split_at_peaks(idx, blobs, peaks, width)
         labels = self._own_spots(idx, labels, in_glow, idx[peaks])
-        return labels, snr[peaks], idx[peaks], (idx[faint], snr[faint])
+        own = _Crowded(idx[crowded.at], crowded.row, crowded.col)
+        return labels, seed_snr[peaks], idx[peaks], (idx[faint], snr[faint]), own
 
     def _standing_out(
         self, filtered: NDArray[np.float32], idx: NDArray[np.intp], snr: NDArray[np.float64]
@@ -543,6 +562,15 @@ class _FrameDetector:
             self._dropped_over_cap += len(kept) - cap
             kept = np.sort(kept[np.argsort(-snr[kept], kind="stable")[:cap]])
         return kept
+
+
+@dataclass(frozen=True)
+class _Crowded:
+    """Seeds beside brighter spots: flat indices (ascending) and sub-pixel centres."""
+
+    idx: NDArray[np.intp]
+    row: NDArray[np.float64]
+    col: NDArray[np.float64]
 
 
 def _blur(y: NDArray[np.uint8], sigma: float) -> NDArray[np.uint8]:

@@ -550,3 +550,44 @@ def test_the_default_levels_depend_on_the_binning_and_overrides_do_not() -> None
     assert (default.seed_level(2), default.lit_level(3)) == (BINNED_SEED_LEVEL, BINNED_LIT_LEVEL)
     chosen = TrackingParams(threshold=6.0, lit_threshold=3.5)
     assert (chosen.seed_level(2), chosen.lit_level(2)) == (6.0, 3.5)
+
+
+@pytest.fixture(scope="module")
+def pairs(tmp_path_factory: pytest.TempPathFactory) -> Scene:
+    """Every third frame shows four pairs of spots 4 px apart, one five times fainter:
+    a swarm's flashes side by side."""
+    rng = np.random.default_rng(5)
+    pictures, truth = [], []
+    for k in range(45):
+        u = v = amplitude = np.zeros(0)
+        if k >= 6 and k % 3 == 0:
+            u0, v0 = rng.uniform(20, W - 20, 4), rng.uniform(20, H - 20, 4)
+            angle = rng.uniform(0, 2 * np.pi, 4)
+            u = np.r_[u0, u0 + 4 * np.cos(angle)]
+            v = np.r_[v0, v0 + 4 * np.sin(angle)]
+            amplitude = np.r_[np.full(4, 150.0), np.full(4, 30.0)]
+            truth += [(k, *row) for row in zip(u, v, amplitude, strict=True)]
+        pictures.append(vf.gaussian_spots(H, W, u, v, amplitude, 1.4, BACKGROUND))
+    path = vf.write_video(tmp_path_factory.mktemp("pairs") / "pairs.mp4", pictures, crf=8)
+    return Scene(probe_video([path]), np.array(truth))
+
+
+def test_deblending_finds_the_faint_flash_beside_a_bright_one(pairs: Scene) -> None:
+    faint = pairs.truth[pairs.truth[:, 3] < 100]
+    for deblend, expected in ((False, 0), (True, len(faint))):
+        found = track(pairs.info, params=FAST.model_copy(update={"deblend": deblend}))
+        rows = _match(found, faint)
+        error = np.hypot(_wrapped_distance(found.x[rows], faint[:, 1]), found.y[rows] - faint[:, 2])
+        assert np.count_nonzero(error < 1.0) == expected
+    # Each pair is two candidates then, nothing more.
+    assert len(found) == len(pairs.truth)
+
+
+@pytest.mark.parametrize("cuts", CUTS[:2], ids=lambda c: "-".join(map(str, c)))
+def test_chunks_equal_the_unchunked_run_with_deblending(
+    flickering: VideoInfo, cuts: list[int]
+) -> None:
+    params = FAST.model_copy(update={"deblend": True})
+    whole = track(flickering, params=params)
+    parts = [track(flickering, a, b, params) for a, b in itertools.pairwise(cuts)]
+    _assert_same_rows(Detections.concat(parts), _in_range(whole, cuts[0], cuts[-1]))
