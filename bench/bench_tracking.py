@@ -157,6 +157,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--model", help="ONNX classifier (default: the shipped one)")
     parser.add_argument("--no-classifier", action="store_true", help="track without it")
     parser.add_argument("--repeat", type=int, default=3, help="rounds of the three runs")
+    parser.add_argument(
+        "--params",
+        type=json.loads,
+        default={},
+        metavar="JSON",
+        help="TrackingParams overrides, e.g. '{\"deblend\": true}'",
+    )
     parser.add_argument("--profile", action="store_true", help="cProfile one tracking run")
     parser.add_argument("--rss-child", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
@@ -170,11 +177,12 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
     info = probe_video(paths)
-    params = TrackingParams()
+    params = TrackingParams.model_validate(args.params)
     print(f"recording: {', '.join(paths)}")
     print(f"  {info.width}×{info.height} {info.codec} {info.fps:.2f} fps, {info.n_frames} frames")
     print(f"classifier: {classifier_note}")
     print(f"cv2 threads: {cv2.getNumThreads()}")
+    print(f"tracking overrides: {args.params or 'none'}")
 
     candidates = 0
 
