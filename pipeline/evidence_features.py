@@ -90,14 +90,14 @@ RELAYED: tuple[str, ...] = (
     "partner_flash_probability",
     "light_curve_flash_probability",
     "pair_flash_probability",
-    "neighbour_flash_probability",
+    "confirmed_neighbour_flash_probability",
 )
 #: The `RELAYED` columns of second passes trained before the neighbours' was relayed.
 FIRST_RELAYED: tuple[str, ...] = RELAYED[:3]
 
 #: A firefly flashes again a few degrees from where it flashed, within seconds; light
 #: curves nearer in time are the same flash, or its spot's clutter
-#: (``neighbour_flash_probability``; chosen out of fold on the tuning nights,
+#: (``confirmed_neighbour_flash_probability``; chosen out of fold on the tuning nights,
 #: docs/detection.md).
 NEIGHBOUR_RADIUS_DEG = 6.0
 NEIGHBOUR_WINDOW_S = 3.0
@@ -223,9 +223,11 @@ def relayed_probabilities(
     * ``light_curve_flash_probability``: the largest one along its own light curve;
     * ``pair_flash_probability``: the largest ``light_curve_flash_probability`` of the
       other camera's light curves its light curve is matched with;
-    * ``neighbour_flash_probability``: the largest ``light_curve_flash_probability`` of
-      the same camera's other light curves that a firefly could have flashed before or
-      after it (`neighbour_probabilities`).
+    * ``confirmed_neighbour_flash_probability``: the largest of the same camera's other
+      light curves that a firefly could have flashed before or after it
+      (`neighbour_probabilities`), each counting the smaller of its
+      ``light_curve_flash_probability`` and its ``pair_flash_probability``: what both
+      cameras made of it.
 
     Parameters
     ----------
@@ -253,13 +255,16 @@ def relayed_probabilities(
     pair_best = np.full(n_curves, np.nan)
     np.fmax.at(pair_best, curve[matched], curve_best[curve[partner]])
     out[:, 2] = pair_best[curve]
-    if "neighbour_flash_probability" in columns:  # a tree search: only when read
-        out[:, 3] = neighbour_probabilities(p, curve_best, links)[curve]
+    if "confirmed_neighbour_flash_probability" in columns:  # a tree search: only when read
+        # A neighbour vouches as far as the other camera saw it too: clutter in one
+        # camera (moon through leaves) forms clusters that would vouch for each other.
+        confirmed = np.fmin(curve_best, np.nan_to_num(pair_best, nan=0.0))
+        out[:, 3] = neighbour_probabilities(p, confirmed, links)[curve]
     return out[:, [RELAYED.index(name) for name in columns]]
 
 
 def neighbour_probabilities(
-    probability: NDArray[np.float64], curve_best: NDArray[np.float64], links: CandidateLinks
+    probability: NDArray[np.float64], vouch: NDArray[np.float64], links: CandidateLinks
 ) -> NDArray[np.float64]:
     """Per light curve, the best probability of the same recording's light curves that
     could be the same firefly's flashes before or after it.
@@ -268,15 +273,16 @@ def neighbour_probabilities(
     made it flashes again every few seconds, a few degrees away, often where nothing
     hides it. Each light curve is placed at its most probable row; two are neighbours
     when those rows lie within `NEIGHBOUR_RADIUS_DEG` of each other and
-    `NEIGHBOUR_MIN_GAP_S` to `NEIGHBOUR_WINDOW_S` apart in time. Only curves of at least
-    `NEIGHBOUR_MIN_PROBABILITY` are relayed.
+    `NEIGHBOUR_MIN_GAP_S` to `NEIGHBOUR_WINDOW_S` apart in time. Only curves that vouch
+    at least `NEIGHBOUR_MIN_PROBABILITY` are relayed.
 
     Parameters
     ----------
     probability : ndarray, shape (N,)
         First-pass flash probability of each row.
-    curve_best : ndarray, shape (C,)
-        The largest probability of each light curve (labels of ``links.light_curve``).
+    vouch : ndarray, shape (C,)
+        What each light curve relays to its neighbours (labels of ``links.light_curve``),
+        e.g. its largest probability.
     links : CandidateLinks
         The rows' light curves, recordings, times and bearings.
 
@@ -286,10 +292,10 @@ def neighbour_probabilities(
         NaN where no neighbour is relayed.
     """
     curve = links.light_curve
-    out = np.full(len(curve_best), np.nan)
+    out = np.full(len(vouch), np.nan)
     order = np.lexsort((probability, curve))
     best_row = order[np.r_[curve[order][1:] != curve[order][:-1], True]] if len(curve) else order
-    relayed = curve_best[curve[best_row]] >= NEIGHBOUR_MIN_PROBABILITY
+    relayed = vouch[curve[best_row]] >= NEIGHBOUR_MIN_PROBABILITY
     if not relayed.any():
         return out
     # Chebyshev boxes of unit half-width: the radius's chord on each axis of the bearing,
@@ -309,7 +315,7 @@ def neighbour_probabilities(
     apart = np.abs(links.time_s[to] - links.time_s[src])
     near = np.linalg.norm(links.bearing[to] - links.bearing[src], axis=1) <= chord
     keep = near & (apart >= NEIGHBOUR_MIN_GAP_S) & (curve[to] != curve[src])
-    np.fmax.at(out, curve[to[keep]], curve_best[curve[src[keep]]])
+    np.fmax.at(out, curve[to[keep]], vouch[curve[src[keep]]])
     return out
 
 

@@ -20,6 +20,7 @@ from pipeline.evidence_features import (
     as_strong_per_frame,
     candidate_features,
     candidate_links,
+    neighbour_probabilities,
     relayed_probabilities,
     stereo_matches,
 )
@@ -269,7 +270,7 @@ def test_a_firefly_s_other_flashes_vouch_for_a_doubtful_one() -> None:
         time_s=time_s,
         bearing=np.array([_bearing(a) for a in azimuth]),
     )
-    neighbour = relayed_probabilities(p, links)[:, RELAYED.index("neighbour_flash_probability")]
+    neighbour = neighbour_probabilities(p, p, links)  # one row a light curve
     # 1 is vouched for by 0 and by 2; 0 and 2 by 1; 5, though unlikely, by 0 and 2.
     np.testing.assert_array_equal(neighbour, [0.3, 0.9, 0.3, np.nan, np.nan, 0.9, np.nan])
 
@@ -286,5 +287,26 @@ def test_a_light_curve_is_placed_at_its_most_probable_row() -> None:
         bearing=np.array([_bearing(3 * r), _bearing(2 * r), _bearing(0.0), _bearing(r / 2)]),
     )
     p = np.array([0.2, 0.3, 0.9, 0.4])
-    neighbour = relayed_probabilities(p, links)[:, RELAYED.index("neighbour_flash_probability")]
-    np.testing.assert_array_equal(neighbour, [0.4, 0.4, 0.4, 0.9])
+    neighbour = neighbour_probabilities(p, np.array([0.9, 0.4]), links)
+    np.testing.assert_array_equal(neighbour, [0.4, 0.9])
+
+
+def test_only_neighbours_the_other_camera_saw_vouch_when_confirmed() -> None:
+    # Camera 1: a confident light curve (0) the other camera matched with a doubtful one
+    # (2), clutter as confident that camera 2 never saw (1), and a flash in doubt (3) a
+    # second after both, beside them.
+    r = NEIGHBOUR_RADIUS_DEG
+    links = CandidateLinks(
+        light_curve=np.array([0, 1, 3, 2]),
+        partner=np.array([3, -1, -1, 0]),
+        sequence=np.array([0, 0, 0, 1]),
+        time_s=np.array([1.0, 1.0, 2.0, 1.0]),
+        bearing=np.array([_bearing(0.0), _bearing(r / 4), _bearing(r / 2), _bearing(0.0)]),
+    )
+    p = np.array([0.9, 0.95, 0.3, 0.6])
+    (confirmed,) = relayed_probabilities(p, links, ("confirmed_neighbour_flash_probability",)).T
+    # A neighbour vouches as much as the lesser of its own light curve and the other
+    # camera's matched one: 0 by min(0.9, 0.6); the clutter, more confident, not at all.
+    assert confirmed[2] == 0.6
+    # The flash in doubt vouches for nobody: it was not matched either.
+    assert np.isnan(confirmed[[0, 1]]).all()
