@@ -2,11 +2,12 @@
 
 Two flashes 3–6 px apart make one blob of the matched filter's response, and the fainter
 one is often no local maximum at all, only a shoulder on the brighter one's slope: on
-the simulated swarm tuning night (hard-swarm s12, 640 px) 0.72 of the flash-frames of
-≥ 5 σ had a candidate, 0.53–0.59 of those with another flash 3–6 px away. Each peak's
-spot is fitted with a Gaussian through its pixel and four neighbours, its light is taken
-off the blob, and what still rises to the seed level as a local maximum, away from every
-peak, is a seed of its own (docs/detection.md, "Crowded flashes").
+the simulated swarm tuning night (hard-swarm s12, 640 px, camera 1) 0.72 of the
+flash-frames of ≥ 5 σ had a candidate (0.80 with these seeds), 0.45–0.52 of those with
+another flash 3–6 px away. Each peak's spot is fitted with a Gaussian through its pixel
+and four neighbours, its light is taken off the blob, and what still rises to the seed
+level as a local maximum, away from every peak, is a seed of its own (docs/detection.md,
+"Crowded flashes").
 
 Only blobs whose every peak is a compact Gaussian spot are looked into: a glint on a
 swaying leaf or a lamp's rim is not a Gaussian, and what is left of it after taking a
@@ -37,8 +38,9 @@ MAX_SPOT_SIGMA_PX = 2.5
 MIN_SEPARATION_PX = 1.5
 #: Fewest σ a seed has of its own for each σ of its nearest peak: a moving flash's
 #: streak, or a spot the encoder smeared, is no Gaussian either, and leaves a tenth of
-#: its light or less beside it when one is taken off (hard-clean tuning nights s12-13,
-#: 640 px: 52 of the 96 seeds it added, 0 of 5 true; swarm s12: 17 of 155, 12 true).
+#: its light or less beside it when one is taken off (tuning nights, 640 px, camera 1:
+#: it drops 52 of the 96 false seeds of hard-clean s12-13, and 30 of the 155 seeds of
+#: hard-swarm s12, 16 of them true).
 MIN_SHARE = 0.1
 #: How far a spot's light is taken off, in its widest σ.
 REACH_SIGMAS = 3.0
