@@ -356,22 +356,15 @@ def _gaussian_through(
     return np.where(np.isfinite(step), np.clip(step, -0.5, 0.5), 0.0), variance
 
 
-def _cross(
-    image: NDArray[np.floating], rows: NDArray[np.intp], cols: NDArray[np.intp]
-) -> tuple[NDArray[np.float64], ...]:
-    """Values at, left of, right of, above and below each pixel (columns wrap at the
-    seam; rows beyond the poles read the pole row)."""
-    height, width = image.shape
-    return tuple(
-        image[r, c].astype(np.float64)
-        for r, c in (
-            (rows, cols),
-            (rows, (cols - 1) % width),
-            (rows, (cols + 1) % width),
-            (np.maximum(rows - 1, 0), cols),
-            (np.minimum(rows + 1, height - 1), cols),
-        )
-    )
+#: Offsets ``(dr, dc)`` of a pixel and its four neighbours: at, left, right, above, below.
+CROSS = np.array([(0, 0), (0, -1), (0, 1), (-1, 0), (1, 0)])
+
+
+def wrap_columns(col: NDArray[np.number], width: int) -> NDArray[np.float64]:
+    """Columns wrapped into ``[0, width)`` at the 360° seam."""
+    wrapped = np.mod(np.asarray(col, np.float64), width)
+    wrapped[wrapped >= width] -= width  # mod can round a tiny negative up to exactly W
+    return wrapped
 
 
 def to_full_resolution(
@@ -379,10 +372,7 @@ def to_full_resolution(
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Sub-pixel positions in a ``bin_px``-binned image of `width` bins as ``(x, y)`` in
     full-resolution pixels, ``x`` wrapped into ``[0, bin_px · width)``."""
-    full_width = width * bin_px
-    x = np.mod((col + 0.5) * bin_px - 0.5, full_width)
-    x[x >= full_width] -= full_width  # mod can round a tiny negative up to exactly W
-    return x, (row + 0.5) * bin_px - 0.5
+    return wrap_columns((col + 0.5) * bin_px - 0.5, width * bin_px), (row + 0.5) * bin_px - 0.5
 
 
 def subpixel_peak(
@@ -463,8 +453,11 @@ def gaussian_spots(
         each peak (e.g. `image` less the light of other spots).
     """
     height, width = image.shape
-    rows, cols = np.divmod(np.asarray(peak, np.intp), width)
-    centre, left, right, up, down = cross if cross is not None else _cross(image, rows, cols)
+    peak = np.asarray(peak, np.intp)
+    rows, cols = np.divmod(peak, width)
+    if cross is None:
+        cross = tuple(_around(image, peak, CROSS).astype(np.float64).T)
+    centre, left, right, up, down = cross
     dx, var_col = _gaussian_through(left, centre, right)
     dy, var_row = _gaussian_through(up, centre, down)
     at_pole = (rows == 0) | (rows == height - 1)
@@ -518,9 +511,7 @@ def spots_light(
     def place(
         r: NDArray[np.floating], c: NDArray[np.floating], b: NDArray[np.intp]
     ) -> NDArray[np.float64]:
-        wrapped = np.mod(c, width)
-        wrapped[wrapped >= width] = 0.0  # mod can round a tiny negative up to exactly W
-        return np.column_stack([r, wrapped, b * 2.0 * extent]).astype(np.float64)
+        return np.column_stack([r, wrap_columns(c, width), b * 2.0 * extent]).astype(np.float64)
 
     pairs = cKDTree(place(spots.row, spots.col, spot_blob), boxsize=box).sparse_distance_matrix(
         cKDTree(place(rows, cols, blob), boxsize=box), radius, output_type="ndarray"

@@ -23,12 +23,14 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from pipeline.blobs import (
+    CROSS,
     PixelIndex,
     climb_to_maximum,
     gaussian_spots,
     local_maxima,
     spots_light,
     window_indices,
+    wrap_columns,
 )
 
 #: Widest spot fitted, σ in pixels of the recording: the matched filter (σ 1 px) over
@@ -44,7 +46,6 @@ MIN_SEPARATION_PX = 1.5
 MIN_SHARE = 0.1
 #: How far a spot's light is taken off, in its widest σ.
 REACH_SIGMAS = 3.0
-_CROSS = np.array([(0, 0), (0, -1), (0, 1), (-1, 0), (1, 0)])
 
 
 @dataclass(frozen=True)
@@ -131,10 +132,10 @@ def crowded_seeds(
     if len(new) == 0:
         return CrowdedSeeds.empty()
     # Each new seed's own spot: a Gaussian through the residual at its pixel and around.
-    around = window_indices(response.shape, idx[new], _CROSS)
+    around = window_indices(response.shape, idx[new], CROSS)
     around_rows, around_cols = np.divmod(around.ravel(), width)
     around_light = spots_light(
-        spots, owner, around_rows, around_cols, np.repeat(blobs[new], len(_CROSS)), width, reach
+        spots, owner, around_rows, around_cols, np.repeat(blobs[new], len(CROSS)), width, reach
     ).reshape(around.shape)
     cross = tuple((response.ravel()[around] - around_light).T.astype(np.float64))
     own = gaussian_spots(response, idx[new], cross)
@@ -156,9 +157,7 @@ def _nearest(
     box = [height, float(width)]
 
     def place(r: NDArray[np.number], c: NDArray[np.number]) -> NDArray[np.float64]:
-        wrapped = np.mod(c, width)
-        wrapped[wrapped >= width] = 0.0  # mod can round a tiny negative up to exactly W
-        return np.column_stack([r, wrapped]).astype(np.float64)
+        return np.column_stack([r, wrap_columns(c, width)]).astype(np.float64)
 
     tree = cKDTree(place(centres[:, 0], centres[:, 1]), boxsize=box)
     distance, nearest = tree.query(place(rows, cols))
