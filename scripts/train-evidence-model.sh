@@ -6,6 +6,11 @@
 #
 #   scripts/train-evidence-model.sh OUT_DIR [firefly3d]
 #
+# RULES_EXTRA adds ProcessParams of the nights' runs, as JSON members, e.g. to train on
+# the candidates of the crowded-flash seeds (docs/detection.md, "Crowded flashes"):
+#
+#   RULES_EXTRA='"tracking": {"deblend": true}' scripts/train-evidence-model.sh OUT_DIR
+#
 # writes OUT_DIR/g*.json (eval-detection), OUT_DIR/<night>/ (runs) and
 # OUT_DIR/evidence_trees.json (the model; its cut is where the two passes accept out of
 # fold as many false candidates as the first pass alone at 0.625, the one-pass model's
@@ -14,7 +19,7 @@ set -eu
 out=${1:?usage: $0 OUT_DIR [firefly3d]}
 cli=${2:-firefly3d}
 mkdir -p "$out"
-echo '{"acceptance": {"evidence_model": null}}' > "$out/rules.json"
+echo "{\"acceptance\": {\"evidence_model\": null}${RULES_EXTRA:+, $RULES_EXTRA}}" > "$out/rules.json"
 echo '{"fps": 60}' > "$out/fps60.json"
 nights() { # name, then eval-detection arguments
     name=$1
