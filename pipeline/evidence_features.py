@@ -18,6 +18,9 @@ the delay and the pose are known, from the other one:
   lengthens the spell and joins its chain);
 * how crowded its camera is with candidates at least as strong (`as_strong_per_frame`):
   in a frame full of grain speckle a chance stereo partner is likely, in a quiet one not;
+  and whether a stronger candidate of its frame lies a few pixels away
+  (`brighter_neighbours`): the faint one of a crowded pair (`pipeline.crowding`) is a
+  flash in a swarm, or the shoulder of a bright spot that is not round;
 * the artifact tests: recurrence (`pipeline.recurrence`), flicker duty
   (`pipeline.flicker`), how many other light curves lit the same spot within seconds
   (`REVISIT_RADIUS_DEG`, `REVISIT_WINDOW_S`: a firefly moves between its flashes, a
@@ -70,6 +73,8 @@ _OWN: tuple[str, ...] = (
     "candidate_lit_share",
     "trough",
     "hollow",
+    "brighter_neighbour_snr_share_log",
+    "brighter_neighbour_px",
     *_VERDICTS,
 )
 #: Own columns of the matched candidate of the other camera, read as ``other_<name>``.
@@ -408,9 +413,59 @@ def _own_features(
                 candidate_lit / ev.lit_frames,
                 det.trough.astype(np.float64),
                 det.hollow.astype(np.float64),
+                *brighter_neighbours(det, width),
                 verdicts,
             ]
         )
+
+
+#: A candidate looks for a stronger one of its frame within this many pixels (Chebyshev):
+#: a few point spreads. Pixels, not degrees: the spread of a spot is the sensor's.
+BRIGHTER_NEIGHBOUR_PX = 6.0
+
+
+def brighter_neighbours(
+    det: Detections, width: int
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The nearest stronger candidate of the same frame, for each candidate.
+
+    Parameters
+    ----------
+    det : Detections
+        One camera's candidates.
+    width : int
+        Frame width in pixels (``x`` is periodic: the 360° seam).
+
+    Returns
+    -------
+    share_log, distance_px : ndarray of float64, shape (N,)
+        Log of the candidate's SNR over that of the nearest candidate of its frame with a
+        larger SNR within `BRIGHTER_NEIGHBOUR_PX`, and the distance between the two in
+        pixels; NaN where there is none.
+    """
+    n = len(det)
+    share = np.full(n, np.nan)
+    distance = np.full(n, np.nan)
+    if n < 2:
+        return share, distance
+    # Frames 2 apart never meet in the unit Chebyshev ball.
+    tree = spot_tree(2.0 * det.frame, det.x, det.y, width, BRIGHTER_NEIGHBOUR_PX * 360.0 / width)
+    pairs = tree.query_pairs(1.0, p=np.inf, output_type="ndarray")
+    if len(pairs) == 0:
+        return share, distance
+    snr = det.snr.astype(np.float64)
+    weak, strong = pairs.T
+    swap = snr[weak] > snr[strong]
+    weak, strong = np.where(swap, strong, weak), np.where(swap, weak, strong)
+    keep = snr[strong] > snr[weak]
+    weak, strong = weak[keep], strong[keep]
+    dx = (det.x[strong] - det.x[weak] + width / 2) % width - width / 2
+    gap = np.hypot(dx, det.y[strong] - det.y[weak])
+    order = np.lexsort((gap, weak))
+    first = order[np.r_[True, weak[order][1:] != weak[order][:-1]]]
+    share[weak[first]] = np.log(snr[weak[first]] / snr[strong[first]])
+    distance[weak[first]] = gap[first]
+    return share, distance
 
 
 #: Length of the blocks of a recording over which `as_strong_per_frame` counts, seconds:

@@ -10,6 +10,7 @@ from numpy.typing import NDArray
 from pipeline.acceptance import Evidence, Verdict, assess, spot_chains, steady_frames
 from pipeline.detections import Detections
 from pipeline.evidence_features import (
+    BRIGHTER_NEIGHBOUR_PX,
     CROWD_BLOCK_S,
     FEATURES,
     NEIGHBOUR_MIN_GAP_S,
@@ -18,6 +19,7 @@ from pipeline.evidence_features import (
     RELAYED,
     CandidateLinks,
     as_strong_per_frame,
+    brighter_neighbours,
     candidate_features,
     candidate_links,
     neighbour_probabilities,
@@ -214,6 +216,22 @@ def test_the_crowd_of_a_candidate_is_a_feature() -> None:
     rows, _ = _features(candidates, evidence, 30.0)
     expected = as_strong_per_frame(candidates[0].frame, candidates[0].snr, 30.0)
     np.testing.assert_allclose(_col(rows, "as_strong_per_frame_log"), np.log(expected))
+
+
+def test_the_faint_one_of_a_crowded_pair_knows_its_stronger_neighbour() -> None:
+    """Frame 0: a 20 sigma spot, a 5 sigma one 2 px from it and a 10 sigma one 4 px from
+    it across the seam; frame 1: the 5 sigma spot alone but for a stronger one just out
+    of reach, and a tie of two 7 sigma spots (neither is stronger)."""
+    out_of_reach = 4.0 + BRIGHTER_NEIGHBOUR_PX + 0.5
+    frame = [0, 0, 0, 1, 1, 1, 1]
+    x = [2.0, 4.0, 638.0, 4.0, out_of_reach, 300.0, 301.0]
+    y = [50.0, 50.0, 50.0, 50.0, 50.0, 80.0, 80.0]
+    snr = [20.0, 5.0, 10.0, 5.0, 30.0, 7.0, 7.0]
+    det = Detections.from_columns(frame, x, y, snr=snr)
+    share, distance = brighter_neighbours(det, WIDTH)
+    np.testing.assert_allclose(share[:3], [np.nan, np.log(5 / 20), np.log(10 / 20)])
+    np.testing.assert_allclose(distance[:3], [np.nan, 2.0, 4.0])
+    assert np.isnan(share[3:]).all() and np.isnan(distance[3:]).all()
 
 
 def test_links_join_both_cameras_rows_by_light_curve_and_stereo_match() -> None:
