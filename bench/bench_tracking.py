@@ -162,7 +162,7 @@ def main(argv: list[str] | None = None) -> int:
         type=json.loads,
         default={},
         metavar="JSON",
-        help="TrackingParams overrides, e.g. '{\"deblend\": true}'",
+        help="TrackingParams overrides, e.g. '{\"deblend\": false}'",
     )
     parser.add_argument("--profile", action="store_true", help="cProfile one tracking run")
     parser.add_argument("--rss-child", type=int, help=argparse.SUPPRESS)

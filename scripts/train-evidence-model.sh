@@ -7,9 +7,10 @@
 #   scripts/train-evidence-model.sh OUT_DIR [firefly3d]
 #
 # RULES_EXTRA adds ProcessParams of the nights' runs, as JSON members, e.g. to train on
-# the candidates of the crowded-flash seeds (docs/detection.md, "Crowded flashes"):
+# the candidates of tracking without the crowded-flash seeds (docs/detection.md,
+# "Crowded flashes"):
 #
-#   RULES_EXTRA='"tracking": {"deblend": true}' scripts/train-evidence-model.sh OUT_DIR
+#   RULES_EXTRA='"tracking": {"deblend": false}' scripts/train-evidence-model.sh OUT_DIR
 #
 # writes OUT_DIR/g*.json (eval-detection), OUT_DIR/<night>/ (runs) and
 # OUT_DIR/evidence_trees.json (the model; its cut is where the two passes accept out of
