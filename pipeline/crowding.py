@@ -6,8 +6,8 @@ the simulated swarm tuning night (hard-swarm s12, 640 px, camera 1) 0.72 of the
 flash-frames of ≥ 5 σ had a candidate (0.80 with these seeds), 0.45–0.52 of those with
 another flash 3–6 px away. Each peak's spot is fitted with a Gaussian through its pixel
 and four neighbours, its light is taken off the blob, and what still rises to the seed
-level as a local maximum, away from every peak, is a seed of its own (docs/detection.md,
-"Crowded flashes").
+level as a local maximum, away from every peak, and is itself a spot, is a seed of its
+own (docs/detection.md, "Crowded flashes").
 
 Only blobs whose every peak is a compact Gaussian spot are looked into: a glint on a
 swaying leaf or a lamp's rim is not a Gaussian, and what is left of it after taking a
@@ -36,6 +36,10 @@ from pipeline.blobs import (
 #: Widest spot fitted, σ in pixels of the recording: the matched filter (σ 1 px) over
 #: the widest simulated point spread (2 px) gives 2.24 px; wider is not a point.
 MAX_SPOT_SIGMA_PX = 2.5
+#: Narrowest spot a seed may be, σ in pixels of the recording: the matched filter alone
+#: spreads a point over 1 px, so a residual much narrower is the edge of a spot the
+#: fit got wrong (a light that moved: the dark hollow it left bends its fit).
+MIN_SPOT_SIGMA_PX = 0.5
 #: A seed closer than this to a peak's centre is that peak's own light, pixels.
 MIN_SEPARATION_PX = 1.5
 #: Fewest σ a seed has of its own for each σ of its nearest peak: a moving flash's
@@ -128,7 +132,9 @@ def crowded_seeds(
     seed_rows, seed_cols = np.divmod(idx[maxima], width)
     apart, nearest = _nearest(centres, seed_rows, seed_cols, width)
     share = residual[maxima] / snr[at[nearest]]
-    new = maxima[(apart > max(MIN_SEPARATION_PX / bin_px, 1.0)) & (share >= MIN_SHARE)]
+    # The pole rows are the filters' replicated border: a spot's tail bends there.
+    inner = (seed_rows > 0) & (seed_rows < response.shape[0] - 1)
+    new = maxima[(apart > max(MIN_SEPARATION_PX / bin_px, 1.0)) & (share >= MIN_SHARE) & inner]
     if len(new) == 0:
         return CrowdedSeeds.empty()
     # Each new seed's own spot: a Gaussian through the residual at its pixel and around.
@@ -139,7 +145,9 @@ def crowded_seeds(
     ).reshape(around.shape)
     cross = tuple((response.ravel()[around] - around_light).T.astype(np.float64))
     own = gaussian_spots(response, idx[new], cross)
-    return CrowdedSeeds(new, residual[new], own.row, own.col)
+    narrowest = (MIN_SPOT_SIGMA_PX / bin_px) ** 2
+    spot = (own.var_row >= narrowest) & (own.var_col >= narrowest)
+    return CrowdedSeeds(new[spot], residual[new[spot]], own.row[spot], own.col[spot])
 
 
 def _nearest(
