@@ -454,10 +454,10 @@ def brighter_neighbours(
     if len(pairs) == 0:
         return share, distance
     snr = det.snr.astype(np.float64)
-    weak, strong = pairs.T
-    swap = snr[weak] > snr[strong]
-    weak, strong = np.where(swap, strong, weak), np.where(swap, weak, strong)
-    keep = snr[strong] > snr[weak]
+    a, b = pairs.T
+    weak = np.where(snr[a] < snr[b], a, b)
+    strong = a + b - weak
+    keep = snr[strong] > snr[weak]  # a tie has no stronger one
     weak, strong = weak[keep], strong[keep]
     dx = (det.x[strong] - det.x[weak] + width / 2) % width - width / 2
     gap = np.hypot(dx, det.y[strong] - det.y[weak])
