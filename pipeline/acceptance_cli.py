@@ -61,7 +61,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def _train_acceptance(args: argparse.Namespace) -> int:
     from pipeline.classify import DEFAULT_MODEL_NAME
     from pipeline.detection_eval_cli import load_truth_for_eval
-    from pipeline.training.acceptance import common_matched_filter, night_rows, run_params, train
+    from pipeline.training.acceptance import common_tracking, night_rows, run_params, train
 
     nights, params = [], []
     for document in args.runs:
@@ -78,7 +78,7 @@ def _train_acceptance(args: argparse.Namespace) -> int:
         print("error: give nights of at least two seeds (folds are whole seeds)", file=sys.stderr)
         return 2
     try:
-        matched_sigma_px = common_matched_filter(params)
+        tracking = common_tracking(params)
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
@@ -86,7 +86,7 @@ def _train_acceptance(args: argparse.Namespace) -> int:
     model, figures = train(
         nights,
         classifier,
-        matched_sigma_px,
+        tracking,
         args.seed,
         args.threshold,
         first_pass_cut=args.false_as_first_pass_at,

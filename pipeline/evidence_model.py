@@ -26,7 +26,6 @@ classifier, or with detections made elsewhere (no probabilities), the rules deci
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Self
@@ -69,8 +68,8 @@ class EvidenceModel:
     classifier : str
         File name of the patch classifier whose probabilities it was trained on.
     card : dict
-        Everything else the file says (training nights, figures; ``matched_sigma_px``:
-        the tracking filter its candidates came from, when the card says).
+        Everything else the file says (training nights, figures; ``tracking``: the
+        `TrackingParams` its candidates came from, when the card says).
     features : tuple of str
         The `FEATURES` it reads, in its trees' column order: a release may compute more
         than a model was trained on, so a new kind of evidence does not retire a model.
@@ -108,10 +107,14 @@ class EvidenceModel:
             )
 
     @property
-    def matched_sigma_px(self) -> float | None:
-        """`TrackingParams.matched_sigma_px` of the nights it was trained on, if known."""
-        value = self.card.get("matched_sigma_px")
-        return None if value is None else float(value)
+    def tracking(self) -> dict[str, Any]:
+        """The `TrackingParams` fields of the nights it was trained on, as far as its card
+        says (cards of earlier releases name only ``matched_sigma_px``)."""
+        if "tracking" in self.card:
+            return dict(self.card["tracking"])
+        if "matched_sigma_px" in self.card:
+            return {"matched_sigma_px": self.card["matched_sigma_px"]}
+        return {}
 
     @classmethod
     def load(cls, path: str | Path) -> Self:
@@ -178,9 +181,10 @@ def evidence_model(
 
     None without a model (``params.evidence_model`` None), when the acceptance stage is
     off, or when the patch classifier is not the one the model was trained with: its
-    probabilities would mean something else. A model trained on candidates of another
-    matched filter still decides, with a warning (the second value): their SNRs and
-    light curves are on a slightly different scale.
+    probabilities would mean something else. A model trained on candidates tracked with
+    other `TrackingParams` (another matched filter, threshold, deblending) still decides,
+    with a warning naming them (the second value): their SNRs, light curves and
+    neighbours are on a slightly different scale.
     """
     if not params.enabled or params.evidence_model is None:
         return None, None
@@ -194,11 +198,15 @@ def evidence_model(
             f"the evidence model was trained on {model.classifier}'s probabilities, this run "
             f"classified with {used}: the rules decide"
         )
-    trained = model.matched_sigma_px
-    if trained is not None and not math.isclose(trained, tracking.matched_sigma_px):
+    run = tracking.model_dump(mode="json")
+    differ = sorted(name for name, value in model.tracking.items() if run.get(name, value) != value)
+    if differ:
         return model, (
-            f"the evidence model was trained on candidates of a {trained:g} px matched filter, "
-            f"this run tracked with {tracking.matched_sigma_px:g} px: its decisions may be off"
+            "the evidence model was trained on candidates tracked with "
+            + ", ".join(f"{name}={model.tracking[name]}" for name in differ)
+            + ", this run tracked with "
+            + ", ".join(f"{name}={run[name]}" for name in differ)
+            + ": its decisions may be off"
         )
     return model, None
 

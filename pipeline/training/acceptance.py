@@ -42,7 +42,7 @@ from pipeline.evidence_features import (
     stereo_matches,
 )
 from pipeline.evidence_model import EvidenceModel
-from pipeline.params import ProcessParams
+from pipeline.params import ProcessParams, TrackingParams
 from pipeline.results import read_calibration
 from pipeline.simulate import GroundTruth
 from pipeline.training.splits import grouped_folds
@@ -127,19 +127,30 @@ def run_params(results: Path) -> ProcessParams:
     return ProcessParams()
 
 
-def common_matched_filter(params: Sequence[ProcessParams]) -> float:
-    """The one `TrackingParams.matched_sigma_px` all the runs tracked with.
+def common_tracking(params: Sequence[ProcessParams]) -> TrackingParams:
+    """The one `TrackingParams` all the runs tracked with.
 
-    A model learns the SNRs and light curves of one filter's candidates, so runs of
-    different filters are refused (ValueError).
+    A model learns the SNRs, light curves and neighbours of one tracking's candidates
+    (its matched filter, its thresholds, whether crowded flashes are deblended), so runs
+    tracked differently are refused (ValueError, naming the fields that differ).
     """
-    filters = sorted({p.tracking.matched_sigma_px for p in params})
-    if len(filters) != 1:
-        raise ValueError(
-            f"the runs tracked with matched filters of {filters} px; a model is trained on "
-            "the candidates of one"
+    if not params:
+        raise ValueError("no runs: a model is trained on the candidates of at least one")
+    first = params[0].tracking.model_dump(mode="json")
+    differ: dict[str, list[Any]] = {}
+    for other in params[1:]:
+        for name, value in other.tracking.model_dump(mode="json").items():
+            if value != first[name]:
+                differ.setdefault(name, [first[name]]).append(value)
+    if differ:
+        fields = "; ".join(
+            f"{name} {sorted(set(map(str, values)))}" for name, values in sorted(differ.items())
         )
-    return filters[0]
+        raise ValueError(
+            f"the runs tracked differently ({fields}); a model is trained on the candidates "
+            "of one tracking"
+        )
+    return params[0].tracking
 
 
 def to_ensemble(model: Any) -> TreeEnsemble:
@@ -214,7 +225,7 @@ def operating_point(
 def train(
     nights: Sequence[Night],
     classifier: str,
-    matched_sigma_px: float,
+    tracking: TrackingParams,
     seed: int = 0,
     threshold: float | None = None,
     folds: int = 4,
@@ -228,7 +239,7 @@ def train(
     `first_pass_cut` (a retrained model keeps an operating point's false count); else
     the cut of largest F1.
 
-    `classifier` (file name) and `matched_sigma_px` (`TrackingParams`) say where the
+    `classifier` (file name) and `tracking` (the nights' `TrackingParams`) say where the
     nights' candidates and probabilities came from; the card records both.
 
     Returns
@@ -266,7 +277,7 @@ def train(
         "second pass over them and RELAYED",
         "boosting": BOOSTING,
         "seed": seed,
-        "matched_sigma_px": matched_sigma_px,
+        "tracking": tracking.model_dump(mode="json"),
         "trained_on": [n.name for n in nights],
         "n_rows": len(rows),
         "n_flashes": int(is_flash.sum()),

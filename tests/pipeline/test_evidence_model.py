@@ -158,12 +158,30 @@ def test_the_rules_decide_without_the_models_classifier() -> None:
     assert evidence_model(off, ClassifierParams(), tracking) == (None, None)
 
 
-def test_a_model_of_another_matched_filter_decides_with_a_warning() -> None:
-    shipped = EvidenceModel.load(DEFAULT_EVIDENCE_MODEL).matched_sigma_px
-    assert shipped == TrackingParams().matched_sigma_px
-    other = TrackingParams(matched_sigma_px=2 * shipped)
+def test_a_model_of_another_tracking_decides_with_a_warning() -> None:
+    shipped = EvidenceModel.load(DEFAULT_EVIDENCE_MODEL)
+    assert shipped.tracking == TrackingParams().model_dump(mode="json")
+    model, why = evidence_model(AcceptanceParams(), ClassifierParams(), TrackingParams())
+    assert model is not None and model.card == shipped.card and why is None
+    other = TrackingParams(matched_sigma_px=2.0, deblend=False)
     model, why = evidence_model(AcceptanceParams(), ClassifierParams(), other)
-    assert model is not None and f"{shipped:g} px matched filter" in why
+    assert model is not None
+    assert "tracked with deblend=True, matched_sigma_px=1.0," in why
+    assert "this run tracked with deblend=False, matched_sigma_px=2.0:" in why
+
+
+def test_a_card_of_an_earlier_release_names_only_its_matched_filter(tmp_path) -> None:
+    data = json.loads(DEFAULT_EVIDENCE_MODEL.read_text(encoding="utf-8"))
+    del data["tracking"]
+    data["matched_sigma_px"] = 1.0
+    path = tmp_path / "earlier.json"
+    path.write_text(json.dumps(data), encoding="utf-8")
+    params = AcceptanceParams(evidence_model=str(path))
+    # Deblending is not on its card: only the matched filter can be checked.
+    _, why = evidence_model(params, ClassifierParams(), TrackingParams(deblend=False))
+    assert why is None
+    _, why = evidence_model(params, ClassifierParams(), TrackingParams(matched_sigma_px=0.75))
+    assert "matched_sigma_px=1.0" in why and "matched_sigma_px=0.75" in why
 
 
 def _camera(frames, points, snr, probability, camera):

@@ -11,12 +11,14 @@ from pipeline.params import ProcessParams, TrackingParams
 from pipeline.training.acceptance import (
     Night,
     best_f1_threshold,
-    common_matched_filter,
+    common_tracking,
     equal_false_threshold,
     stacked_links,
     train,
 )
 from tests.pipeline.links_factory import links_apart
+
+NARROW = TrackingParams(matched_sigma_px=0.75)
 
 
 def test_the_f1_threshold_cuts_between_distinct_probabilities() -> None:
@@ -48,7 +50,7 @@ def _night(seed: int, scenario: str, rng: np.random.Generator) -> Night:
 def test_a_model_learns_evidence_and_writes_its_card(tmp_path) -> None:
     rng = np.random.default_rng(0)
     nights = [_night(seed, scenario, rng) for seed in (1, 2, 3) for scenario in ("a", "b")]
-    model, figures = train(nights, "flashnet2.onnx", 0.75, seed=0, folds=3)
+    model, figures = train(nights, "flashnet2.onnx", NARROW, seed=0, folds=3)
     assert set(figures) == {"a", "b"}
     assert all(f["precision"] > 0.9 and f["recall_of_candidates"] > 0.9 for f in figures.values())
     assert model.card["trained_on"] == [n.name for n in nights]
@@ -56,7 +58,7 @@ def test_a_model_learns_evidence_and_writes_its_card(tmp_path) -> None:
     model.to_json(path)
     back = EvidenceModel.load(path)
     assert back.threshold == model.threshold and back.classifier == "flashnet2.onnx"
-    assert back.matched_sigma_px == 0.75
+    assert back.tracking == NARROW.model_dump(mode="json")
     test = _night(9, "a", rng)
     accepted = back.probability(test.rows) >= back.threshold
     assert np.mean(accepted == test.is_flash) > 0.9
@@ -65,8 +67,10 @@ def test_a_model_learns_evidence_and_writes_its_card(tmp_path) -> None:
 def test_a_given_threshold_is_kept_and_scored_out_of_fold() -> None:
     rng = np.random.default_rng(1)
     nights = [_night(seed, "a", rng) for seed in (1, 2, 3)]
-    best, _ = train(nights, "flashnet2.onnx", 1.0, seed=0, folds=3)
-    strict, figures = train(nights, "flashnet2.onnx", 1.0, seed=0, threshold=0.95, folds=3)
+    best, _ = train(nights, "flashnet2.onnx", TrackingParams(), seed=0, folds=3)
+    strict, figures = train(
+        nights, "flashnet2.onnx", TrackingParams(), seed=0, threshold=0.95, folds=3
+    )
     assert best.card["threshold_chosen_by"] == "largest out-of-fold F1"
     assert strict.threshold == 0.95 and strict.card["threshold_chosen_by"] == "given"
     loose = best.card["out_of_fold_at_threshold"]["a"]
@@ -74,13 +78,16 @@ def test_a_given_threshold_is_kept_and_scored_out_of_fold() -> None:
     assert figures["a"]["precision"] >= loose["precision"]
 
 
-def test_a_model_learns_the_candidates_of_one_matched_filter() -> None:
-    narrow = ProcessParams(tracking=TrackingParams(matched_sigma_px=0.75))
-    assert common_matched_filter([narrow, narrow]) == 0.75
-    with pytest.raises(ValueError, match=r"\[0.75, 1.0\] px"):
-        common_matched_filter([narrow, ProcessParams()])
-    with pytest.raises(ValueError):
-        common_matched_filter([])
+def test_a_model_learns_the_candidates_of_one_tracking() -> None:
+    narrow = ProcessParams(tracking=NARROW)
+    assert common_tracking([narrow, narrow]) == NARROW
+    with pytest.raises(ValueError, match=r"matched_sigma_px \['0.75', '1.0'\]"):
+        common_tracking([narrow, ProcessParams()])
+    merged = ProcessParams(tracking=TrackingParams(deblend=False))
+    with pytest.raises(ValueError, match=r"deblend \['False', 'True'\]"):
+        common_tracking([ProcessParams(), merged])
+    with pytest.raises(ValueError, match="no runs"):
+        common_tracking([])
 
 
 def _linked_night(seed: int, rng: np.random.Generator) -> Night:
@@ -98,7 +105,9 @@ def _linked_night(seed: int, rng: np.random.Generator) -> Night:
 
 def test_the_second_pass_learns_what_a_light_curve_shares() -> None:
     rng = np.random.default_rng(2)
-    model, figures = train([_linked_night(s, rng) for s in (1, 2, 3)], "m.onnx", 1.0, folds=3)
+    model, figures = train(
+        [_linked_night(s, rng) for s in (1, 2, 3)], "m.onnx", TrackingParams(), folds=3
+    )
     first = model.card["first_pass_out_of_fold_at_threshold"]
     second = figures["a"]
     assert second["precision"] > first["precision"] + 0.05
@@ -123,10 +132,10 @@ def test_the_equal_false_cut_accepts_at_most_that_many_false_rows() -> None:
 def test_a_retrained_model_can_keep_the_first_passs_false_count() -> None:
     rng = np.random.default_rng(3)
     nights = [_linked_night(s, rng) for s in (1, 2, 3)]
-    model, _ = train(nights, "m.onnx", 1.0, folds=3, first_pass_cut=0.5)
+    model, _ = train(nights, "m.onnx", TrackingParams(), folds=3, first_pass_cut=0.5)
     card = model.card
     assert card["threshold_chosen_by"] == "the first pass's out-of-fold false count at 0.5"
-    kept = train(nights, "m.onnx", 1.0, folds=3, threshold=0.5)[0].card
+    kept = train(nights, "m.onnx", TrackingParams(), folds=3, threshold=0.5)[0].card
     first = kept["first_pass_out_of_fold_at_threshold"]
     both = sum(f["accepted"] - f["true"] for f in card["out_of_fold_at_threshold"].values())
     assert both <= first["accepted"] - first["true"]
