@@ -308,7 +308,16 @@ class SyncParams(BaseModel):
         default=120.0, gt=0, description="Largest |delay| searched, in seconds (both signs)."
     )
     window_s: float = Field(
-        default=10.0, gt=0, description="Length of each RANSAC window of camera 1, in seconds."
+        default=10.0,
+        gt=0,
+        description="Length of each RANSAC window of camera 1, in seconds; when camera 1's "
+        "flashes span less, the windows cover two thirds of that span (with a warning).",
+    )
+    min_window_s: float = Field(
+        default=3.0,
+        gt=0,
+        description="Shortest RANSAC window a short recording may shorten the windows to, in "
+        "seconds; camera 1's flashes must span 1.5 times this.",
     )
     n_windows: int = Field(
         default=200,

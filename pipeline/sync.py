@@ -21,6 +21,7 @@ the same instant as camera-2 frame ``k + dk``; ``dk`` may be negative.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
@@ -41,6 +42,9 @@ _WINDOW_BATCH = 50
 #: Key frames are neutralised only while they are at most this share of a camera's
 #: frames: an intra-only recording (every frame a key frame) renews its grain evenly.
 MAX_KEY_FRAME_SHARE = 0.25
+#: Share of camera 1's active stretch a shortened RANSAC window covers (`_window_length`):
+#: long enough to hold most of its flashes, short enough that random windows differ.
+SHORT_WINDOW_SHARE = 2 / 3
 
 
 class SyncError(ValueError):
@@ -130,8 +134,9 @@ def estimate_delay(
     Raises
     ------
     SyncError
-        If a camera has no flashes, or camera 1's active stretch is shorter than a
-        window.
+        If a camera has no flashes, or camera 1's active stretch is too short for a
+        window of ``min_window_s`` (a stretch shorter than ``window_s`` shortens the
+        windows, with a warning).
     ValueError
         If the counts are not 1-D finite non-negative series or ``fps`` is not positive.
     """
@@ -145,13 +150,7 @@ def estimate_delay(
         )
     )
     max_lag = max(1, round(params.max_delay_s * fps))
-    window = max(2, round(params.window_s * fps))
-    active1 = clean1.last - clean1.first
-    if active1 < window:
-        raise SyncError(
-            f"camera 1 has flashes over only {active1} frames, shorter than one window of "
-            f"{window} frames (window_s={params.window_s} at {fps} fps)"
-        )
+    window, warnings = _window_length(clean1.last - clean1.first, fps, params)
     x1, x2 = clean1.centred(), clean2.centred()
     lags, correlation = global_correlation(x1, x2, max_lag)
     starts = _window_starts(clean1, window, params)
@@ -166,7 +165,6 @@ def estimate_delay(
         raise SyncError("no RANSAC window of camera 1 contains any flash contrast")
     delay = _modal_vote(votes, lags, correlation)
     confidence = float(np.mean(np.abs(votes - delay) <= params.agree_frames))
-    warnings = []
     if confidence < params.min_confidence:
         warnings.append(
             f"low delay confidence {confidence:.2f} ({len(votes)} windows, delay {delay} frames)"
@@ -363,6 +361,42 @@ def _rare(key_frames: ArrayLike | None, n_frames: int) -> ArrayLike | None:
     if key_frames is None or len(np.asarray(key_frames)) > MAX_KEY_FRAME_SHARE * n_frames:
         return None
     return key_frames
+
+
+def _window_length(active1: int, fps: float, params: SyncParams) -> tuple[int, list[str]]:
+    """RANSAC window in frames, shortened when camera 1's flashes span less than one.
+
+    A shortened window covers `SHORT_WINDOW_SHARE` of the active stretch, so the random
+    windows still differ from one another; below ``min_window_s`` too few flashes fall
+    in a window to tell one lag from another.
+
+    Returns
+    -------
+    window : int
+        Window length, in frames.
+    warnings : list of str
+        Why the window was shortened (the estimate is then less certain), or nothing.
+
+    Raises
+    ------
+    SyncError
+        If the shortened window would be shorter than ``min_window_s``.
+    """
+    window = max(2, round(params.window_s * fps))
+    if active1 >= window:
+        return window, []
+    shortened = math.floor(SHORT_WINDOW_SHARE * active1)
+    if shortened < params.min_window_s * fps:
+        raise SyncError(
+            f"camera 1 has flashes over only {active1} frames ({active1 / fps:.1f} s): too "
+            f"short to estimate the delay (a window of at least min_window_s="
+            f"{params.min_window_s} s must fit {SHORT_WINDOW_SHARE:.2f} of that stretch)"
+        )
+    return shortened, [
+        f"camera 1 has flashes over only {active1 / fps:.1f} s, shorter than one "
+        f"window_s={params.window_s} s window: windows shortened to {shortened / fps:.1f} s, "
+        "the delay of a short recording is less certain"
+    ]
 
 
 def _window_starts(clean1: CleanCounts, window: int, params: SyncParams) -> IntArray:

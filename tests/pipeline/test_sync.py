@@ -144,10 +144,24 @@ def test_camera_without_flashes_raises() -> None:
         estimate_delay(counts1, np.zeros(5000, np.int64), FPS)
 
 
-def test_recording_shorter_than_a_window_raises() -> None:
-    counts = np.ones(200, np.int64)
-    with pytest.raises(SyncError, match="shorter than one window"):
+def test_flashes_too_short_for_the_shortest_window_raise() -> None:
+    # 4 s of flashes: a 3 s window (min_window_s) is more than two thirds of them.
+    counts = np.ones(120, np.int64)
+    with pytest.raises(SyncError, match="too short to estimate the delay"):
         estimate_delay(counts, counts, FPS)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_flashes_shorter_than_a_window_shorten_it_with_a_warning(seed: int) -> None:
+    # 9 s of a night at 30 fps, shorter than the 10 s window: 6 s windows.
+    rng = np.random.default_rng(seed + 40)
+    delay = int(rng.integers(-60, 60))
+    counts1, counts2 = flash_counts(rng, delay, 270, 270, n_trains=10)
+    est = estimate_delay(counts1, counts2, FPS)
+    assert est.delay_frames == delay
+    assert est.n_windows == SyncParams().n_windows
+    assert any("windows shortened to" in w for w in est.warnings)
+    assert est.confidence > SyncParams().min_confidence
 
 
 def test_bad_input_raises_clear_errors() -> None:
