@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -611,6 +611,34 @@ def rotation_se_deg(estimate: PoseEstimate) -> float:
     )
 
 
+def translation_se_deg(estimate: PoseEstimate) -> float:
+    """The baseline direction's standard error in degrees: the Jacobian's, scaled up as
+    the rotation's is where the block jackknife sees more (`rotation_se_deg`), as the
+    covariance the points' ranges take is (`pipeline.pose_refit.jackknife_scaled`)."""
+    jacobian = estimate.stats.get("rotation_se_deg", 0.0)
+    scale = rotation_se_deg(estimate) / jacobian if jacobian > 0 else 1.0
+    return float(estimate.stats.get("translation_se_deg", 0.0) * max(scale, 1.0))
+
+
+def baseline_warnings(estimate: PoseEstimate, params: PoseParams) -> list[str]:
+    """A warning when the baseline's direction is poorly determined (`translation_se_deg`
+    above ``params.max_translation_se_deg``): a direction δ off moves a point's range by
+    up to about δ in radians of itself (1° ≈ 1.7 %), whatever the rotation's precision.
+
+    Not one of `fit_warnings`, which choose among refits: it reports the pose kept.
+    """
+    se = translation_se_deg(estimate)
+    if se <= params.max_translation_se_deg:
+        return []
+    return [
+        f"the baseline's direction is poorly determined (standard error {se:.2f}°, good "
+        f"fits measure under {params.max_translation_se_deg:g}°) by its "
+        f"{estimate.n_inliers} pairs: 3D ranges may be off by {np.radians(2 * se):.0%} "
+        "or more; a longer recording, or flashes spread over more of the sky, would "
+        "constrain it"
+    ]
+
+
 def fit_warnings(estimate: PoseEstimate, width: int, params: PoseParams) -> list[str]:
     """Warnings on how well the pose fits its inliers, in pixels of angle of a frame
     `width` pixels wide (a residual is only small or large against the pixel)."""
@@ -647,7 +675,7 @@ class Calibrated:
     min_snr : float or None
         SNR floor of the flashes those pairs were made of; None: every flash given.
     warnings : list of str
-        The estimate's warnings and `fit_warnings`.
+        The estimate's warnings, `fit_warnings` and `baseline_warnings`.
     tried : list of dict
         Every fit tried, in order: ``min_snr``, ``n_pairs``, ``n_inliers``,
         ``median_residual_px`` (or ``error`` when no pose could be fitted).
@@ -723,7 +751,7 @@ def calibrate_pose(
         )
         fit = Calibrated(estimate, pairs, min_snr, warnings, tried)
         if not warnings:
-            return fit
+            return _with_baseline_warnings(fit, params)
         if best is None or _doubt(fit, width) < _doubt(best, width):
             best = fit
     if best is None:
@@ -734,7 +762,11 @@ def calibrate_pose(
             if floors
             else str(failed)
         ) from None
-    return best
+    return _with_baseline_warnings(best, params)
+
+
+def _with_baseline_warnings(fit: Calibrated, params: PoseParams) -> Calibrated:
+    return replace(fit, warnings=[*fit.warnings, *baseline_warnings(fit.estimate, params)])
 
 
 def _doubt(fit: Calibrated, width: int) -> tuple[int, float, float]:

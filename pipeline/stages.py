@@ -51,6 +51,7 @@ from pipeline.params import AcceptanceParams, ClassifierParams, validate_separat
 from pipeline.pose import (
     PoseError,
     PoseEstimate,
+    baseline_warnings,
     calibrate_pose,
     estimate_pose,
     fit_warnings,
@@ -481,7 +482,10 @@ def refit(ctx: StageContext) -> StageResult:
         except PoseError as exc:
             warnings.append(f"the pose of the confident flashes is kept, not refitted: {exc}")
         else:
-            warnings = fit_warnings(estimate, calibration.width, params)
+            warnings = [
+                *fit_warnings(estimate, calibration.width, params),
+                *baseline_warnings(estimate, params),
+            ]
             covariance = jackknife_scaled(estimate)
             save_pairs(ctx.path(REFIT_PAIRS_NPZ), pairs.frame1, estimate)
             refitted = {

@@ -8,12 +8,15 @@ from pipeline.params import PoseParams
 from pipeline.pose import (
     CalibrationPairs,
     PoseError,
+    baseline_warnings,
     calibrate_pose,
     calibration_pairs,
     essential_matrix_pose,
     estimate_pose,
     fit_warnings,
+    rotation_se_deg,
     standard_errors_deg,
+    translation_se_deg,
     worst_axis_covariance,
 )
 
@@ -438,3 +441,42 @@ def test_the_worst_axis_covariance_spreads_each_part_evenly() -> None:
     for part in (slice(0, 3), slice(3, 6)):
         assert np.linalg.eigvalsh(spread[part, part] - est.covariance[part, part]).min() > -1e-15
     assert np.isinf(worst_axis_covariance(np.full((6, 6), np.inf), est.pose.translation)).all()
+
+
+def cone_scene(
+    rng: np.random.Generator, n: int, spread_deg: float
+) -> tuple[Pose, np.ndarray, np.ndarray]:
+    """Exact bearings of `n` points 3–6 m away within about `spread_deg` of one direction
+    at right angles to the baseline (a swarm)."""
+    pose = Pose(Rotation.from_rotvec(np.radians([1.0, -2.0, 3.0])).as_matrix(), [1.0, 0.0, 0.0])
+    direction = np.array([0.0, 1.0, 0.0]) + np.radians(spread_deg) * rng.normal(size=(n, 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    in_camera2 = pose.world_to_camera2(rng.uniform(3.0, 6.0, (n, 1)) * direction, SEPARATION)
+    return pose, direction, in_camera2 / np.linalg.norm(in_camera2, axis=1, keepdims=True)
+
+
+def test_a_swarm_seen_in_a_narrow_cone_leaves_the_baseline_loose() -> None:
+    rng = np.random.default_rng(4)
+    fits, off = {}, {}
+    for spread in (5.0, 30.0):
+        truth, b1, b2 = cone_scene(rng, 200, spread)
+        pairs = CalibrationPairs(np.arange(200), jitter(rng, b1, 0.05), jitter(rng, b2, 0.05))
+        fits[spread] = estimate_pose(pairs)
+        off[spread] = errors_deg(fits[spread].pose, truth)[1]
+    narrow, wide = fits[5.0], fits[30.0]
+    # Rotation and baseline trade off under a narrow cone: the same grain leaves the
+    # baseline's direction loose, and the standard error says so.
+    assert translation_se_deg(wide) < 0.1 < 0.5 < translation_se_deg(narrow)
+    assert off[30.0] < 0.2 < off[5.0]
+    (warning,) = baseline_warnings(narrow, PoseParams())
+    assert "baseline's direction is poorly determined" in warning
+    assert baseline_warnings(wide, PoseParams()) == []
+    assert baseline_warnings(narrow, PoseParams(max_translation_se_deg=5.0)) == []
+
+
+def test_the_baseline_error_is_scaled_like_the_rotation_by_the_jackknife() -> None:
+    _, pairs = flashes_of_a_night(np.random.default_rng(5), 12, 10, misplaced_deg=0.5)
+    est = estimate_pose(pairs)
+    ratio = rotation_se_deg(est) / est.stats["rotation_se_deg"]
+    assert ratio > 2.0  # the jackknife sees the flashes' shared errors
+    assert translation_se_deg(est) == pytest.approx(est.stats["translation_se_deg"] * ratio)
