@@ -49,18 +49,25 @@ class BackgroundModel(Protocol):
         """The background ``B`` in grey levels (float32)."""
         ...
 
-    def update(self, y: NDArray[np.uint8]) -> None:
-        """Fold a frame into the model."""
+    def update(self, y: NDArray[np.uint8], lit: NDArray[np.bool_] | None = None) -> None:
+        """Fold a frame into the model; `lit` pixels (a flash) more slowly where the model
+        supports it (`Ewma`)."""
         ...
 
 
 class Ewma:
-    """One EWMA image, started as a running mean."""
+    """One EWMA image, started as a running mean.
 
-    def __init__(self, shape: tuple[int, int], alpha: float) -> None:
+    Pixels given as lit in an update are folded in at ``lit_share`` of the rate: a swarm
+    flashing at the same spots every half second would otherwise lift the background
+    there, and the negative-side noise estimate with it, by a share of its own light.
+    """
+
+    def __init__(self, shape: tuple[int, int], alpha: float, lit_share: float = 1.0) -> None:
         self.mean = np.zeros(shape, np.float32)
         self.n = 0
         self._alpha = alpha
+        self._lit_share = lit_share
 
     def foreground(
         self, y: NDArray[np.uint8], out: NDArray[np.float32] | None = None
@@ -72,9 +79,14 @@ class Ewma:
     def level(self) -> NDArray[np.float32]:
         return self.mean
 
-    def update(self, y: NDArray[np.uint8]) -> None:
+    def update(self, y: NDArray[np.uint8], lit: NDArray[np.bool_] | None = None) -> None:
         self.n += 1
-        cv2.accumulateWeighted(y, self.mean, max(self._alpha, 1.0 / self.n))
+        alpha = max(self._alpha, 1.0 / self.n)
+        if lit is None or self._lit_share == 1.0:
+            cv2.accumulateWeighted(y, self.mean, alpha)
+            return
+        cv2.accumulateWeighted(y, self.mean, alpha, mask=np.logical_not(lit).view(np.uint8))
+        cv2.accumulateWeighted(y, self.mean, alpha * self._lit_share, mask=lit.view(np.uint8))
 
 
 class BoxMean:
@@ -97,7 +109,9 @@ class BoxMean:
     def level(self) -> NDArray[np.float32]:
         return (self._sum * np.float32(1.0 / max(self._n, 1))).astype(np.float32)
 
-    def update(self, y: NDArray[np.uint8]) -> None:
+    def update(self, y: NDArray[np.uint8], lit: NDArray[np.bool_] | None = None) -> None:
+        # Every frame counts alike: the ring's integer sums stay exact (`lit` unsupported,
+        # TrackingParams forbids it with this model).
         if self._n == len(self._ring):
             np.subtract(self._sum, self._ring[self._next], out=self._sum)
         else:
@@ -134,6 +148,7 @@ class Lanes:
             self._single = self._new_lane(BoxMean(shape, self._window))
         else:
             self._alpha = 1.0 - math.exp(-1.0 / (params.tau_s * fps))
+            self._lit_share = params.lit_update_rate
             self._block, self._warmup = block_grid(fps, params)
             self._first_block = start // self._block
         self._lanes: dict[int, Lane] = {}
@@ -149,7 +164,7 @@ class Lanes:
         for j in (current, current + 1):
             if j >= self._first_block and k >= j * self._block - self._warmup:
                 if j not in self._lanes:
-                    self._lanes[j] = self._new_lane(Ewma(self._shape, self._alpha))
+                    self._lanes[j] = self._new_lane(Ewma(self._shape, self._alpha, self._lit_share))
                 yield self._lanes[j], j == current
 
     def _new_lane(self, background: BackgroundModel) -> Lane:

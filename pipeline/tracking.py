@@ -302,6 +302,8 @@ class _FrameDetector:
         )
         self._last = (-1, np.zeros(self._binned, np.uint8))  # index and binned luminance
         self._mask = np.empty(self._binned, np.bool_)
+        self._slows_lit = params.lit_update_rate < 1.0
+        self._lit_pixels = np.empty(self._binned, np.bool_)
         self._sigma = params.matched_sigma_px / self._bin  # in bins
         self._threshold = params.seed_level(self._bin)
         self._lit = params.lit_level(self._bin)
@@ -334,18 +336,25 @@ class _FrameDetector:
         found: tuple[Blobs, FaintPeaks] | None = None
         for lane, tracks in self._lanes.at(frame.index):
             foreground = lane.background.foreground(small, self._foreground)
+            lit = None
             if foreground is not None:
                 filtered = matched_filter(foreground, self._sigma, self._filtered)
                 if frame.index % SAMPLE_EVERY == 0 or lane.noise.frames == 0:
                     lane.noise.update(filtered)
-                if tracks and frame.index >= self._start:
+                detects = tracks and frame.index >= self._start
+                if detects or self._slows_lit:
                     noise = lane.noise.pixel_noise(
                         self._binned, self._params.min_noise, self._params.extent_threshold
                     )
+                if detects:
                     found = self._detect(
                         filtered, noise, image, lane.background.level(), small, frame.index
                     )
-            lane.background.update(small)
+                if self._slows_lit:
+                    # Above the extent level, as `_detect` labels: every lane alike, so a
+                    # range tracked on its own stays exact.
+                    lit = np.greater(filtered, noise.level, out=self._lit_pixels)
+            lane.background.update(small, lit)
         self._history.add(frame.index, small)
         self._last = (frame.index, small)
         if found is None and frame.index >= self._start:

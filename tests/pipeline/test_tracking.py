@@ -220,6 +220,56 @@ def test_a_switched_on_lamp_fades_into_the_ewma_with_time_constant_tau(
     assert abs(len(seen) - expected) <= 2
 
 
+def test_a_switched_on_lamp_still_fades_when_lit_pixels_are_slowed(
+    lamps: tuple[VideoInfo, dict],
+) -> None:
+    info, scene = lamps
+    params = TrackingParams(tau_s=0.2, min_noise=2.0, relative_noise=0.0, lit_update_rate=0.5)
+    detections = track(info, params=params)
+    seen = np.sort(detections.frame[_near(detections, *scene["switched"])])
+    assert seen[0] == 45 and np.all(np.diff(seen) == 1)
+    # Lit while it is seen, the lamp is folded in at half the rate: its foreground decays
+    # as exp(-0.5 n / (τ fps)), twice as long as at full rate, and then it is gone.
+    snr = detections.snr[_near(detections, *scene["switched"]) & (detections.frame == 45)]
+    tau_frames = params.tau_s * FPS / params.lit_update_rate
+    expected = math.floor(tau_frames * math.log(snr[0] / params.seed_level(1))) + 1
+    assert abs(len(seen) - expected) <= 2
+    assert seen[-1] < info.n_frames - 5
+    for k, (u, v) in scene["flashes"].items():
+        assert np.count_nonzero(_near(detections, u, v, 0.3) & (detections.frame == k)) == 1
+
+
+@pytest.fixture(scope="module")
+def flashing_in_place(tmp_path_factory: pytest.TempPathFactory) -> VideoInfo:
+    """A spot lit 3 frames in every 10 at one place for 4 s (a swarm's firefly), after
+    5 dark frames (the background starts as the first frame)."""
+    dark = np.full((H, W), BACKGROUND, np.uint8)
+    lit = vf.gaussian_spots(H, W, [320.4], [160.3], [80.0], 1.0, BACKGROUND)
+    pictures = [lit if k >= 5 and (k - 5) % 10 < 3 else dark for k in range(125)]
+    path = vf.write_video(tmp_path_factory.mktemp("in-place") / "in-place.mp4", pictures, crf=4)
+    return probe_video([path])
+
+
+def test_a_spot_flashing_in_place_lifts_a_slowed_background_less(
+    flashing_in_place: VideoInfo,
+) -> None:
+    # A fixed noise level, so that the SNR is proportional to the foreground.
+    params = TrackingParams(tau_s=1.0, min_noise=2.0, relative_noise=0.0)
+    onsets = np.arange(5, 125, 10)
+    snr = {}
+    for rate in (1.0, 0.25):
+        found = track(flashing_in_place, params=params.model_copy(update={"lit_update_rate": rate}))
+        first = found.select(np.isin(found.frame, onsets) & _near(found, 320.4, 160.3))
+        assert first.frame.tolist() == onsets.tolist()
+        snr[rate] = first.snr
+    # The first flash meets a dark background either way; then, over τ = 1 s, a 30 %
+    # duty lifts the background to ~0.3 of the spot at full rate, to ~0.1 at a quarter.
+    assert snr[0.25][0] == pytest.approx(snr[1.0][0])
+    lifted = snr[1.0][-1] / snr[1.0][0]
+    assert lifted < 0.8
+    assert snr[0.25][-1] / snr[0.25][0] > lifted + 0.15
+
+
 def test_a_switched_on_lamp_leaves_the_box_mean_after_a_fraction_of_tau(
     lamps: tuple[VideoInfo, dict],
 ) -> None:
@@ -542,6 +592,8 @@ def test_parameters_are_validated() -> None:
         TrackingParams(extent_threshold=4.5)  # above the unbinned seed level
     with pytest.raises(ValidationError, match="tau"):
         TrackingParams(tau=2.0)  # type: ignore[call-arg]
+    with pytest.raises(ValidationError, match="lit_update_rate"):
+        TrackingParams(background="box", lit_update_rate=0.5)
 
 
 def test_the_default_levels_depend_on_the_binning_and_overrides_do_not() -> None:
@@ -581,6 +633,17 @@ def test_deblending_finds_the_faint_flash_beside_a_bright_one(pairs: Scene) -> N
         assert np.count_nonzero(error < 1.0) == expected
     # Each pair is two candidates then, nothing more.
     assert len(found) == len(pairs.truth)
+
+
+@pytest.mark.parametrize("cuts", CUTS[:2], ids=lambda c: "-".join(map(str, c)))
+def test_chunks_equal_the_unchunked_run_with_lit_pixels_slowed(
+    flickering: VideoInfo, cuts: list[int]
+) -> None:
+    params = FAST.model_copy(update={"lit_update_rate": 0.5})
+    whole = track(flickering, params=params)
+    assert not np.array_equal(whole.snr, track(flickering, params=FAST).snr)
+    parts = [track(flickering, a, b, params) for a, b in itertools.pairwise(cuts)]
+    _assert_same_rows(Detections.concat(parts), _in_range(whole, cuts[0], cuts[-1]))
 
 
 @pytest.mark.parametrize("cuts", CUTS[:2], ids=lambda c: "-".join(map(str, c)))
