@@ -224,14 +224,15 @@ class TrackingParams(BaseModel):
         gt=0,
         le=1,
         description="Share of the EWMA background's rate at which pixels lit above the "
-        "extent level in a frame (a flash, a glint) are folded in: at 1 every pixel alike, "
-        "and a swarm flashing at the same spots every half second lifts the background, "
-        "and the noise measured against it, by a share of its own light. 0.5 on the tuning "
-        "nights s12-13 (640 px) with the shipped evidence model: swarm 2D recall >= 5 "
-        "sigma 0.790 -> 0.815 (false 30 -> 55), wind false 48 -> 26 for the same true; "
-        "held out (s358-360): swarm 0.849 -> 0.873, wind 0.813 -> 0.799, the model "
-        "rejecting more of wind's candidates (docs/detection.md). The shipped evidence "
-        "model was trained at 1, hence the default. 'ewma' only.",
+        "extent level in a frame (a flash, a glint) are folded in, once the model is no "
+        "longer the running mean of its first frames: at 1 every pixel alike, and a swarm "
+        "flashing at the same spots every half second lifts the background, and the noise "
+        "measured against it, by a share of its own light. 0.5 with the shipped evidence "
+        "model: tuning nights s12-13 (640 px) swarm 2D recall >= 5 sigma 0.790 -> 0.809, "
+        "wind false 48 -> 26 for the same true; held out (s358-360) swarm 0.849 -> 0.866, "
+        "wind 0.813 -> 0.799, the model rejecting more of wind's candidates "
+        "(docs/detection.md). The shipped evidence model was trained at 1, hence the "
+        "default. 'ewma' only.",
     )
     block_s: float = Field(
         default=30.0,

@@ -239,6 +239,21 @@ def test_a_switched_on_lamp_still_fades_when_lit_pixels_are_slowed(
         assert np.count_nonzero(_near(detections, u, v, 0.3) & (detections.frame == k)) == 1
 
 
+def test_grain_is_learnt_alike_while_the_background_is_a_running_mean(tmp_path: Path) -> None:
+    # The first frames' mean is grainy itself and lights pixels of the next frames; until
+    # the model is an EWMA (τ · fps frames) they are learnt at the full rate.
+    rng = np.random.default_rng(4)
+    pictures = [np.clip(rng.normal(40.0, 4.0, (H, W)), 0, 255).astype(np.uint8) for _ in range(45)]
+    info = probe_video([vf.write_video(tmp_path / "grain.mp4", pictures, crf=4)])
+    params = TrackingParams(tau_s=0.5, block_s=10.0)
+    full = track(info, params=params)
+    slowed = track(info, params=params.model_copy(update={"lit_update_rate": 0.5}))
+    running_mean = round(params.tau_s * FPS)
+    _assert_same_rows(_in_range(slowed, 0, running_mean), _in_range(full, 0, running_mean))
+    assert len(_in_range(full, 0, running_mean)) > 10
+    assert len(slowed) != len(full)  # then the lit grain is learnt more slowly
+
+
 @pytest.fixture(scope="module")
 def flashing_in_place(tmp_path_factory: pytest.TempPathFactory) -> VideoInfo:
     """A spot lit 3 frames in every 10 at one place for 4 s (a swarm's firefly), after
