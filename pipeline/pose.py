@@ -611,13 +611,19 @@ def rotation_se_deg(estimate: PoseEstimate) -> float:
     )
 
 
-def translation_se_deg(estimate: PoseEstimate) -> float:
-    """The baseline direction's standard error in degrees: the Jacobian's, scaled up as
-    the rotation's is where the block jackknife sees more (`rotation_se_deg`), as the
-    covariance the points' ranges take is (`pipeline.pose_refit.jackknife_scaled`)."""
+def jackknife_scale(estimate: PoseEstimate) -> float:
+    """How many times the block jackknife's rotation standard error exceeds the
+    Jacobian's: at least 1, and 1 where either is unknown (too few pairs to jackknife)."""
     jacobian = estimate.stats.get("rotation_se_deg", 0.0)
-    scale = rotation_se_deg(estimate) / jacobian if jacobian > 0 else 1.0
-    return float(estimate.stats.get("translation_se_deg", 0.0) * max(scale, 1.0))
+    jackknife = estimate.stats.get("rotation_jackknife_se_deg", math.nan)
+    return float(jackknife / jacobian) if jacobian > 0 and jackknife > jacobian else 1.0
+
+
+def translation_se_deg(estimate: PoseEstimate) -> float:
+    """The baseline direction's standard error in degrees: the Jacobian's, scaled by
+    `jackknife_scale` as the covariance the points' ranges take is
+    (`pipeline.pose_refit.jackknife_scaled`)."""
+    return float(estimate.stats.get("translation_se_deg", 0.0) * jackknife_scale(estimate))
 
 
 def baseline_warnings(estimate: PoseEstimate, params: PoseParams) -> list[str]:

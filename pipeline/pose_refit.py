@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from pipeline.detections import Detections
 from pipeline.geometry import Pose, pixel_to_bearing
 from pipeline.params import TriangulationParams
-from pipeline.pose import CalibrationPairs, PoseEstimate
+from pipeline.pose import CalibrationPairs, PoseEstimate, jackknife_scale
 from pipeline.triangulate import triangulate
 
 FloatArray = NDArray[np.float64]
@@ -84,7 +84,4 @@ def stereo_match_pairs(
 def jackknife_scaled(estimate: PoseEstimate) -> FloatArray:
     """The pose covariance scaled by ``(jackknife SE / Jacobian SE)²`` of the rotation
     when the block jackknife's standard error is the larger (and known)."""
-    ratio = estimate.stats["rotation_jackknife_se_deg"] / estimate.stats["rotation_se_deg"]
-    if not np.isfinite(ratio) or ratio <= 1.0:
-        return estimate.covariance
-    return estimate.covariance * ratio**2
+    return estimate.covariance * jackknife_scale(estimate) ** 2

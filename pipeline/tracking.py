@@ -351,9 +351,13 @@ class _FrameDetector:
                         filtered, noise, image, lane.background.level(), small, frame.index
                     )
                 if self._slows_lit:
-                    # Above the extent level, as `_detect` labels: every lane alike, so a
-                    # range tracked on its own stays exact.
-                    lit = np.greater(filtered, noise.level, out=self._lit_pixels)
+                    # Above the extent level, as `_detect` labels (its mask, when it ran):
+                    # every lane alike, so a range tracked on its own stays exact.
+                    lit = (
+                        self._mask
+                        if detects
+                        else np.greater(filtered, noise.level, out=self._lit_pixels)
+                    )
             lane.background.update(small, lit)
         self._history.add(frame.index, small)
         self._last = (frame.index, small)
