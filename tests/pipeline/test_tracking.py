@@ -609,6 +609,9 @@ def test_parameters_are_validated() -> None:
         TrackingParams(tau=2.0)  # type: ignore[call-arg]
     with pytest.raises(ValidationError, match="lit_update_rate"):
         TrackingParams(background="box", lit_update_rate=0.5)
+    # The default rate is the EWMA's: a box mean asked for alone folds every frame in.
+    assert TrackingParams().lit_update_rate == 0.5
+    assert TrackingParams(background="box").lit_update_rate == 1.0
 
 
 def test_the_default_levels_depend_on_the_binning_and_overrides_do_not() -> None:
