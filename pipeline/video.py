@@ -482,7 +482,8 @@ def _yuv_encoding(picture: av.VideoFrame) -> YuvEncoding:
 
 def _to_frame(picture: av.VideoFrame, index: int, encoding: YuvEncoding) -> Frame:
     if picture.format.name not in _PLANAR_FORMATS:
-        picture = picture.reformat(format="yuv420p")
+        # One thread: the decoder's frame threads keep every core busy already.
+        picture = picture.reformat(format="yuv420p", threads=1)
     y, u, v = (_plane_array(p) for p in picture.planes[:3])
     key = bool(picture.key_frame) or picture.pict_type == av.video.frame.PictureType.I
     return Frame(index=index, y=y, u=u, v=v, encoding=encoding, key=key)
