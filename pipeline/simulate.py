@@ -347,6 +347,11 @@ def with_noise(flashes: FlashTruth, scene: Scene, config: SimulationConfig) -> F
     return dataclasses.replace(flashes, **columns)
 
 
+#: Seconds without a word from any render process after which they are stopped: a
+#: frame takes well under a second even at 4K, so only a hung child stays this silent.
+RENDER_STALL_S = 300.0
+
+
 def _worth_processes() -> bool:
     return (
         (os.cpu_count() or 1) > 1
@@ -401,13 +406,21 @@ def _next_message(
     messages: Any, workers: Mapping[int, BaseProcess], running: set[int]
 ) -> tuple[str, Any]:
     """The next message of the render processes; RuntimeError if one of those still
-    running has stopped without a last word."""
+    running has stopped without a last word, or none has said anything for
+    `RENDER_STALL_S`."""
+    silent_s = 0.0
     while True:
         try:
             return messages.get(timeout=1.0)
         except queue.Empty:
             dead = [c for c in sorted(running) if workers[c].exitcode is not None]
             if not dead:
+                silent_s += 1.0
+                if silent_s >= RENDER_STALL_S:
+                    cameras = " and ".join(str(c) for c in sorted(running))
+                    raise RuntimeError(
+                        f"rendering camera {cameras} made no progress for {silent_s:g} s"
+                    ) from None
                 continue
         try:  # its last message may have arrived just after the wait
             return messages.get(timeout=1.0)

@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import time
 from pathlib import Path
 
 import av
@@ -274,6 +275,21 @@ def test_a_failing_render_process_fails_the_recording(
     monkeypatch.setattr(simulate_module, "_render_camera", render)
     config = SimulationConfig(seed=1, seconds=0.5)
     with pytest.raises(error, match=message):
+        simulate_module.render_in_processes(plan(config), tmp_path)
+
+
+def _hang_rendering(drawn: object, camera: int, out: Path, progress: object) -> None:
+    if camera == 2:
+        time.sleep(600)
+
+
+def test_a_hung_render_process_fails_the_recording(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(simulate_module, "_render_camera", _hang_rendering)
+    monkeypatch.setattr(simulate_module, "RENDER_STALL_S", 2.0)
+    config = SimulationConfig(seed=1, seconds=0.5)
+    with pytest.raises(RuntimeError, match="rendering camera 2 made no progress for 2 s"):
         simulate_module.render_in_processes(plan(config), tmp_path)
 
 
