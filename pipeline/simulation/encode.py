@@ -79,8 +79,8 @@ class ChapterWriter:
             self._open_next()
         assert self._stream is not None and self._container is not None
         # Bilinear chroma subsampling: as good as the default bicubic for 2:1, 4x faster.
-        # One thread: swscale's slice threads (PyAV >= 17 starts them by default) hung a
-        # forked render process (`render_in_processes`) waiting on a pool it never had.
+        # One thread: a forked render process (`render_in_processes`) once hung inside
+        # swscale's slice-thread pool, which PyAV >= 17 starts by default.
         frame = av.VideoFrame.from_ndarray(rgb, format="rgb24").reformat(
             format="yuv420p", interpolation="BILINEAR", threads=1
         )
