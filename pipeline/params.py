@@ -485,17 +485,6 @@ class PoseParams(BaseModel):
         "are both at least this SNR (σ): faint flashes carry the heavy tail of position "
         "errors. 0: every match.",
     )
-    refit_position_snr: float = Field(
-        default=40.0,
-        ge=0,
-        description="The refit weighs each match by how well its two flashes are placed: "
-        "a flash's position error is taken as 1 + refit_position_snr / SNR (it falls with "
-        "the SNR down to a floor that crowding and the encoder set), and the match's gap "
-        "is divided by the root-sum-square of its two flashes' (pipeline.pose_refit."
-        "position_weights). On 6 simulated swarm tuning nights (640 px) 40 σ halved the "
-        "refit's rotation error (mean 0.155° -> 0.09°; 20 σ 0.10°, 80 σ 0.087°). 0: all "
-        "matches alike.",
-    )
 
     @model_validator(mode="after")
     def _ordered_thresholds(self) -> PoseParams:

@@ -82,17 +82,11 @@ class CalibrationPairs:
         Camera-1 frame of each pair (camera 2's is ``frame1 + delay_frames``).
     bearing1, bearing2 : ndarray of float64, shape (N, 3)
         Unit bearings in camera 1 and camera 2 coordinates.
-    weight : ndarray of float64, shape (N,), optional
-        How much each pair's residual counts in the least-squares fits on the inliers
-        (multiplying it: the inverse of the pair's relative angular uncertainty). Only
-        ratios matter; ``None`` weighs all pairs alike. The robust starts and the inlier
-        threshold ignore it: an outlier is judged by how far its rays miss, in degrees.
     """
 
     frame1: IntArray
     bearing1: FloatArray
     bearing2: FloatArray
-    weight: FloatArray | None = None
 
     def __len__(self) -> int:
         return len(self.frame1)
@@ -259,7 +253,6 @@ def estimate_pose(
             "some risk of artifacts among them"
         )
     b1, b2 = pairs.bearing1, pairs.bearing2
-    weight = np.ones(n) if pairs.weight is None else pairs.weight
     scale = np.radians(params.min_threshold_deg)
     # Starts compete on an evenly spread subsample; the winner is refined on all pairs.
     sample = np.unique(np.linspace(0, n - 1, min(n, params.max_start_pairs)).astype(np.int64))
@@ -276,16 +269,14 @@ def estimate_pose(
     inliers = _inlier_mask(closest_approach(b1, b2, pose), threshold)
     for _ in range(params.max_refits):
         _require_inliers(inliers, threshold, params)
-        pose = _fit(
-            b1[inliers], b2[inliers], pose, loss="linear", scale=scale, weight=weight[inliers]
-        )[0]
+        pose = _fit(b1[inliers], b2[inliers], pose, loss="linear", scale=scale)[0]
         rays = closest_approach(b1, b2, pose)
         threshold = _threshold(normalised_gap(rays), params)
         previous, inliers = inliers, _inlier_mask(rays, threshold)
         if np.array_equal(inliers, previous):
             break
     _require_inliers(inliers, threshold, params)
-    return _summarise(b1, b2, weight, pose, threshold, params)
+    return _summarise(b1, b2, pose, threshold, params)
 
 
 def normalised_gap(rays: RayPair) -> FloatArray:
@@ -350,12 +341,10 @@ def _fit(
     loss: str,
     scale: float,
     max_nfev: int | None = None,
-    weight: FloatArray | None = None,
 ) -> tuple[Pose, float]:
-    """Local least-squares fit of the pose from ``start`` (each gap multiplied by its
-    ``weight``, if given); returns the pose and its cost."""
+    """Local least-squares fit of the pose from ``start``; returns the pose and its cost."""
     pose_of = _local_parameters(start)
-    residuals = _gaps_near(b1, b2, pose_of, weight)
+    residuals = _gaps_near(b1, b2, pose_of)
     result = least_squares(residuals, np.zeros(5), loss=loss, f_scale=scale, max_nfev=max_nfev)
     return pose_of(result.x), float(result.cost)
 
@@ -379,34 +368,23 @@ def _translation_basis(translation: FloatArray) -> FloatArray:
 
 
 def _gaps_near(
-    b1: FloatArray,
-    b2: FloatArray,
-    pose_of: Callable[[FloatArray], Pose],
-    weight: FloatArray | None = None,
+    b1: FloatArray, b2: FloatArray, pose_of: Callable[[FloatArray], Pose]
 ) -> Callable[[FloatArray], FloatArray]:
-    """The pairs' depth-normalised gaps (times their weights) as a function of the local
-    pose parameters."""
-    factor = 1.0 if weight is None else weight
+    """The pairs' depth-normalised gaps as a function of the local pose parameters."""
 
     def gaps(p: FloatArray) -> FloatArray:
-        return factor * normalised_gap(closest_approach(b1, b2, pose_of(p)))
+        return normalised_gap(closest_approach(b1, b2, pose_of(p)))
 
     return gaps
 
 
-def pose_covariance(
-    bearing1: FloatArray,
-    bearing2: FloatArray,
-    pose: Pose,
-    weight: FloatArray | None = None,
-) -> FloatArray:
+def pose_covariance(bearing1: FloatArray, bearing2: FloatArray, pose: Pose) -> FloatArray:
     """Covariance of a fitted pose, from the pairs it was fitted on.
 
     The covariance of the 5 local parameters (a rotation vector applied to the pose's
     rotation, and the translation's two freedoms as a direction) is ``s² (JᵀJ)⁻¹``, with
     ``J`` the Jacobian of the pairs' depth-normalised gaps (central differences) and
-    ``s²`` their residual variance (``N − 5`` degrees of freedom); with weights, of the
-    weighted gaps (the weights' scale cancels). Pairs that leave the
+    ``s²`` their residual variance (``N − 5`` degrees of freedom). Pairs that leave the
     pose unconstrained (few, or all in nearly one plane through the baseline) give a
     large covariance however small their residuals: a pose can fit such pairs well and
     still be wrong.
@@ -417,8 +395,6 @@ def pose_covariance(
         Unit bearings of the pairs the pose was fitted on (its inliers).
     pose : Pose
         The fitted pose.
-    weight : ndarray of float64, shape (N,), optional
-        The weights the pose was fitted with (`CalibrationPairs.weight`).
 
     Returns
     -------
@@ -430,7 +406,7 @@ def pose_covariance(
     n = len(bearing1)
     if n <= 5:
         return np.full((6, 6), np.inf)
-    residuals = _gaps_near(bearing1, bearing2, _local_parameters(pose), weight)
+    residuals = _gaps_near(bearing1, bearing2, _local_parameters(pose))
     steps = _JACOBIAN_STEP_RAD * np.eye(5)
     jacobian = np.column_stack(
         [(residuals(step) - residuals(-step)) / (2 * _JACOBIAN_STEP_RAD) for step in steps]
@@ -537,26 +513,20 @@ def _n_in_front(rays: RayPair) -> int:
 
 
 def _summarise(
-    b1: FloatArray,
-    b2: FloatArray,
-    weight: FloatArray,
-    pose: Pose,
-    threshold: float,
-    params: PoseParams,
+    b1: FloatArray, b2: FloatArray, pose: Pose, threshold: float, params: PoseParams
 ) -> PoseEstimate:
     rays = closest_approach(b1, b2, pose)
     residuals = np.degrees(normalised_gap(rays))
     inliers = _inlier_mask(rays, threshold)
     n, n_in = len(b1), int(inliers.sum())
-    fitted = (b1[inliers], b2[inliers], pose, weight[inliers])
-    covariance = pose_covariance(*fitted)
+    covariance = pose_covariance(b1[inliers], b2[inliers], pose)
     rotation_se, translation_se = standard_errors_deg(covariance)
     stats = {
         **_describe(residuals[inliers], "deg"),
         **_describe(rays.gap[inliers], "gap"),
         "rotation_se_deg": rotation_se,
         "translation_se_deg": translation_se,
-        "rotation_jackknife_se_deg": rotation_jackknife_se_deg(*fitted),
+        "rotation_jackknife_se_deg": rotation_jackknife_se_deg(b1[inliers], b2[inliers], pose),
     }
     warnings = []
     if n_in < params.min_inlier_fraction * n:
@@ -582,12 +552,7 @@ def _summarise(
 JACKKNIFE_BLOCKS = 8
 
 
-def rotation_jackknife_se_deg(
-    bearing1: FloatArray,
-    bearing2: FloatArray,
-    pose: Pose,
-    weight: FloatArray | None = None,
-) -> float:
+def rotation_jackknife_se_deg(bearing1: FloatArray, bearing2: FloatArray, pose: Pose) -> float:
     """Block-jackknife standard error of the rotation, worst axis, in degrees.
 
     The pairs of one flash share its position errors (a spot on a swaying edge is
@@ -603,8 +568,6 @@ def rotation_jackknife_se_deg(
         Unit bearings of the inlier pairs, in frame order.
     pose : Pose
         The pose fitted on all of them (the start of each refit).
-    weight : ndarray of float64, shape (N,), optional
-        The weights the pose was fitted with (`CalibrationPairs.weight`).
 
     Returns
     -------
@@ -616,15 +579,12 @@ def rotation_jackknife_se_deg(
     n = len(bearing1)
     if n < 3 * JACKKNIFE_BLOCKS:
         return float("nan")
-    weight = np.ones(n) if weight is None else weight
     vectors = []
     for block in np.array_split(np.arange(n), JACKKNIFE_BLOCKS):
         keep = np.ones(n, bool)
         keep[block] = False
         # Least squares like the final fit of `estimate_pose` (a linear loss has no scale).
-        refit = _fit(
-            bearing1[keep], bearing2[keep], pose, loss="linear", scale=1.0, weight=weight[keep]
-        )[0]
+        refit = _fit(bearing1[keep], bearing2[keep], pose, loss="linear", scale=1.0)[0]
         vectors.append(Rotation.from_matrix(refit.rotation @ pose.rotation.T).as_rotvec())
     v = np.array(vectors)
     k = len(v)

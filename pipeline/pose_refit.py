@@ -12,8 +12,7 @@ triangulation's gates (`pipeline.triangulate.triangulate`): 3–5 times the pair
 every firefly in view. The pose is fitted again, from scratch and with the same robust
 estimator (`pipeline.pose.estimate_pose`), on the matches whose two flashes both reach
 ``PoseParams.refit_min_snr`` (`stereo_match_pairs`; faint flashes carry the heavy tail of
-position errors), each match weighted by how well its two flashes are placed
-(`position_weights`).
+position errors).
 
 Its covariance is the Jacobian's, scaled up so that the rotation's standard error is
 the block jackknife's where that is larger (`jackknife_scaled`): the matches of one
@@ -27,14 +26,11 @@ from numpy.typing import NDArray
 
 from pipeline.detections import Detections
 from pipeline.geometry import Pose, pixel_to_bearing
-from pipeline.params import PoseParams, TriangulationParams
+from pipeline.params import TriangulationParams
 from pipeline.pose import CalibrationPairs, PoseEstimate, jackknife_scale
 from pipeline.triangulate import triangulate
 
 FloatArray = NDArray[np.float64]
-
-#: SNR (σ) below which a flash is weighed as if at it: keeps every weight finite.
-_MIN_SNR = 1.0
 
 
 def stereo_match_pairs(
@@ -45,11 +41,10 @@ def stereo_match_pairs(
     width: int,
     separation_m: float,
     params: TriangulationParams,
-    pose_params: PoseParams,
+    min_snr: float,
 ) -> CalibrationPairs:
     """Bearings of the flashes the triangulation matches under `pose`, both at least
-    ``pose_params.refit_min_snr`` (an unknown SNR, NaN, passes), weighted by
-    `position_weights`.
+    `min_snr` (an unknown SNR, NaN, passes).
 
     Parameters
     ----------
@@ -65,9 +60,8 @@ def stereo_match_pairs(
         Distance between the cameras in metres (the triangulation's range gate).
     params : TriangulationParams
         The matching gates.
-    pose_params : PoseParams
-        ``refit_min_snr``: smallest SNR (σ) of either flash of a pair kept;
-        ``refit_position_snr``: the weights' SNR scale.
+    min_snr : float
+        Smallest SNR (σ) of either flash of a pair kept.
 
     Returns
     -------
@@ -76,7 +70,7 @@ def stereo_match_pairs(
     """
     points = triangulate(det1, det2, delay_frames, pose, width, separation_m, params)
     i1, i2 = points.index1, points.index2
-    keep = ~(np.fmin(det1.snr[i1], det2.snr[i2]) < pose_params.refit_min_snr)
+    keep = ~(np.fmin(det1.snr[i1], det2.snr[i2]) < min_snr)
     i1, i2 = i1[keep], i2[keep]
     order = np.argsort(det1.frame[i1], kind="stable")
     i1, i2 = i1[order], i2[order]
@@ -84,39 +78,7 @@ def stereo_match_pairs(
         frame1=det1.frame[i1].astype(np.int64),
         bearing1=pixel_to_bearing(det1.x[i1], det1.y[i1], width),
         bearing2=pixel_to_bearing(det2.x[i2], det2.y[i2], width),
-        weight=position_weights(det1.snr[i1], det2.snr[i2], pose_params.refit_position_snr),
     )
-
-
-def position_weights(snr1: FloatArray, snr2: FloatArray, position_snr: float) -> FloatArray:
-    """Weights of stereo pairs by how well their two flashes are placed.
-
-    A flash's position error is modelled as ``s = 1 + position_snr / SNR`` (relative
-    units): it falls as the inverse of its SNR, as a spot's centroid does in noise, down
-    to a floor that brightness does not lower (a neighbour's light, the encoder's blocks).
-    On simulated swarm nights (640 px, tuning seeds 12–14) the median position error of
-    accepted flashes falls from 0.36 px at 5–8 σ to 0.105 px above 40 σ, about
-    ``0.09 · (1 + 20 / SNR)`` px.
-
-    Parameters
-    ----------
-    snr1, snr2 : ndarray of float64, shape (N,)
-        Peak SNR (σ) of each pair's flash in camera 1 and camera 2; NaN (unknown, e.g.
-        imported detections) counts as bright.
-    position_snr : float
-        The SNR (σ) at which a flash's position error is twice its floor; 0 weighs all
-        pairs alike.
-
-    Returns
-    -------
-    ndarray of float64, shape (N,)
-        ``1 / sqrt(s1² + s2²)``: each pair's gap is multiplied by it in the fit.
-    """
-    spread = [
-        1.0 + position_snr / np.where(np.isnan(snr), np.inf, np.fmax(snr, _MIN_SNR))
-        for snr in (snr1, snr2)
-    ]
-    return np.asarray(1.0 / np.hypot(*spread), dtype=np.float64)
 
 
 def jackknife_scaled(estimate: PoseEstimate) -> FloatArray:

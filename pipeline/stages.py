@@ -476,7 +476,7 @@ def refit(ctx: StageContext) -> StageResult:
                 calibration.width,
                 ctx.separation_m,
                 ctx.params.triangulation,
-                params,
+                params.refit_min_snr,
             )
             estimate = estimate_pose(pairs, params)
         except PoseError as exc:

@@ -21,7 +21,7 @@ from pipeline.geometry import Pose, bearing_to_pixel, rotation_angle
 from pipeline.graph import StageContext, Unit
 from pipeline.params import PoseParams, ProcessParams, TriangulationParams
 from pipeline.pose import CalibrationPairs, PoseEstimate, estimate_pose
-from pipeline.pose_refit import jackknife_scaled, position_weights, stereo_match_pairs
+from pipeline.pose_refit import jackknife_scaled, stereo_match_pairs
 from pipeline.results import Calibration, write_calibration
 from pipeline.stages import refit
 from tests.pipeline.test_pose import jitter
@@ -69,13 +69,13 @@ def night(
 
 
 def refitted(
-    det1: Detections, det2: Detections, params: PoseParams
+    det1: Detections, det2: Detections, min_snr: float
 ) -> tuple[PoseEstimate, CalibrationPairs]:
     """The pose fitted on the stereo matches made under `FIRST`, and those matches."""
     pairs = stereo_match_pairs(
-        det1, det2, 0, FIRST, WIDTH, SEPARATION, TriangulationParams(), params
+        det1, det2, 0, FIRST, WIDTH, SEPARATION, TriangulationParams(), min_snr
     )
-    return estimate_pose(pairs, params), pairs
+    return estimate_pose(pairs), pairs
 
 
 def rotation_error_deg(pose: Pose) -> float:
@@ -84,39 +84,20 @@ def rotation_error_deg(pose: Pose) -> float:
 
 def test_the_matches_of_every_accepted_flash_correct_a_pose_half_a_degree_off() -> None:
     det1, det2 = night(1)
-    estimate, pairs = refitted(det1, det2, PoseParams())
+    params = PoseParams()
+    estimate, pairs = refitted(det1, det2, params.refit_min_snr)
     assert rotation_error_deg(FIRST) > 0.45
     assert rotation_error_deg(estimate.pose) < 0.03
     # The matches of the bright flashes only (the floor is 8 σ): nearly all of them.
     assert 0.9 * 300 <= len(pairs) <= 300 and np.all(np.diff(pairs.frame1) >= 0)
     # With no floor the faint flashes join the fit.
-    every, _ = refitted(det1, det2, PoseParams(refit_min_snr=0.0))
+    every, _ = refitted(det1, det2, 0.0)
     assert every.n_pairs > 1.8 * len(pairs)
-
-
-def test_a_match_weighs_by_how_well_its_two_flashes_are_placed() -> None:
-    snr = np.array([6.0, 20.0, 40.0, 1000.0, np.nan, 0.0])
-    weight = position_weights(snr, np.full(6, 40.0), 40.0)
-    # s = 1 + 40 / SNR: 2 at 40 σ, 1 for an unknown SNR (bright), finite at 0 σ.
-    np.testing.assert_allclose(weight[[2, 4]], [1 / np.hypot(2, 2), 1 / np.hypot(1, 2)])
-    assert np.all(np.diff(weight[:4]) > 0) and 0 < weight[5] < weight[0]
-    np.testing.assert_allclose(position_weights(snr, snr, 0.0), np.full(6, 1 / np.sqrt(2)))
-
-
-def test_weighted_matches_keep_faint_misplaced_flashes_from_pulling_the_pose() -> None:
-    """Every match, faint ones (6 σ, 0.3° off in camera 1) among them: weighed by
-    position, the refit stays near the bright flashes' pose; weighed alike, it does not."""
-    errors = {}
-    for position_snr in (0.0, 40.0):
-        params = PoseParams(refit_min_snr=0.0, refit_position_snr=position_snr)
-        poses = [refitted(*night(seed, faint_error_deg=0.3), params)[0].pose for seed in range(6)]
-        errors[position_snr] = np.sqrt(np.mean([rotation_error_deg(p) ** 2 for p in poses]))
-    assert errors[40.0] < 0.6 * errors[0.0]
 
 
 def test_the_covariance_is_scaled_up_to_the_jackknife_only() -> None:
     det1, det2 = night(2)
-    estimate, _ = refitted(det1, det2, PoseParams())
+    estimate, _ = refitted(det1, det2, PoseParams().refit_min_snr)
     se = estimate.stats["rotation_se_deg"]
     for jackknife, scale in ((2 * se, 4.0), (0.5 * se, 1.0), (float("nan"), 1.0)):
         stats = estimate.stats | {"rotation_jackknife_se_deg": jackknife}
