@@ -564,6 +564,25 @@ class LinkingParams(BaseModel):
         gt=0,
         description="Longest time (s) from a streak's end to the next streak's start.",
     )
+    ambiguity_ratio: float = Field(
+        default=3.0,
+        ge=0,
+        description="A streak joins a later one only when no other streak starting at "
+        "the same moment (within ambiguity_window_s) lies within this many times the "
+        "distance of its end, nor another streak ending then of its start: in a "
+        "synchronous swarm a firefly whose next flash was missed would otherwise take "
+        "a neighbour's. On 6 simulated swarm tuning nights (640 px) trajectory purity "
+        "0.80 -> 0.96 (share of each firefly's points in its main trajectory 0.41 -> "
+        "0.34; on 9 sparser nights 0.99 -> 0.99 and 0.48 -> 0.45). 0: the nearest "
+        "candidate, whatever its rivals.",
+    )
+    ambiguity_window_s: float = Field(
+        default=0.1,
+        gt=0,
+        description="Streaks starting (or ending) within this many seconds of each other "
+        "are rivals for the same link (ambiguity_ratio); a firefly's later flashes, "
+        "a beat or more away, are not.",
+    )
 
 
 class PatternParams(BaseModel):

@@ -585,6 +585,7 @@ def link(ctx: StageContext) -> StageResult:
         "n_points": len(points),
         "n_streaks": len(np.unique(linking.streak_id)),
         "n_trajectories": len(np.unique(linking.trajectory_id)),
+        "n_ambiguous_links": linking.n_ambiguous,
     }
     return StageResult(metrics=metrics)
 

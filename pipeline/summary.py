@@ -64,6 +64,7 @@ def summarise(records: Mapping[Unit, StageResult], params: ProcessParams) -> dic
         points_sure=value("triangulate", "n_points_sure"),
         streaks=value("link", "n_streaks"),
         trajectories=value("link", "n_trajectories"),
+        ambiguous_links=value("link", "n_ambiguous_links"),
     )
     timings = {slug: m.get("seconds") for slug, m in metrics.items()}
     tracking = {}

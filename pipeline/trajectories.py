@@ -3,8 +3,10 @@
 * A **streak** is one flash seen over consecutive frames: a point in frame ``k`` and a
   point in frame ``k + 1`` closer than ``streak_radius_m`` are linked.
 * A **trajectory** is a firefly's flash train: a streak's last point is linked to a
-  later streak's first point when the time between them is in ``(0, max_gap_s]`` and
-  the distance under ``trajectory_radius_m``.
+  later streak's first point when the time between them is in ``(0, max_gap_s]``, the
+  distance under ``trajectory_radius_m``, and no other streak of that moment is nearly
+  as close to either end (``ambiguity_ratio``): in a swarm, a firefly whose next flash
+  was missed would otherwise take a neighbour's.
 
 Both links are one-to-one (a point or streak has at most one successor and one
 predecessor). Competing candidates are resolved greedily, best first: each round
@@ -29,6 +31,7 @@ from pipeline.triangulate import Points3D
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
+BoolArray = NDArray[np.bool_]
 
 
 @dataclass(frozen=True)
@@ -40,10 +43,14 @@ class Linking:
     streak_id, trajectory_id : ndarray of int64, shape (N,)
         0-based contiguous ids, numbered in order of first appearance (frame, then
         row).
+    n_ambiguous : int
+        Candidate links between streaks refused because a rival of the same moment came
+        close (``LinkingParams.ambiguity_ratio``).
     """
 
     streak_id: IntArray
     trajectory_id: IntArray
+    n_ambiguous: int = 0
 
     @property
     def n_streaks(self) -> int:
@@ -102,10 +109,22 @@ def link(
 
     first, last = _streak_ends(streak, points.frame)
     end_src, end_dst, cost = _trajectory_candidates(points, first, last, fps, params)
+    clear = np.ones(len(cost), dtype=bool)
+    if params.ambiguity_ratio > 0:
+        clear = _unambiguous(
+            end_src,
+            end_dst,
+            cost,
+            points.frame[last[end_src]],
+            points.frame[first[end_dst]],
+            params.ambiguity_ratio,
+            params.ambiguity_window_s * fps,
+        )
+        end_src, end_dst, cost = end_src[clear], end_dst[clear], cost[clear]
     end_src, end_dst = _greedy_one_to_one(end_src, end_dst, cost)
     trajectory_of_streak = _chains(len(first), end_src, end_dst)
     trajectory = _first_appearance_labels(trajectory_of_streak[streak], points.frame)
-    return Linking(streak_id=streak, trajectory_id=trajectory)
+    return Linking(streak_id=streak, trajectory_id=trajectory, n_ambiguous=int(np.sum(~clear)))
 
 
 def _trajectory_candidates(
@@ -129,6 +148,64 @@ def _trajectory_candidates(
     ok = np.flatnonzero((gap > 0) & (gap <= max_gap) & (distance < radius))
     ok = ok[np.lexsort((gap[ok], distance[ok]))]
     return src[ok], dst[ok], distance[ok]
+
+
+def _unambiguous(
+    src: IntArray,
+    dst: IntArray,
+    distance: FloatArray,
+    end_frame: IntArray,
+    start_frame: IntArray,
+    ratio: float,
+    window: float,
+) -> BoolArray:
+    """Candidate links that no rival of the same moment comes close to.
+
+    A link from streak end ``src`` to streak start ``dst`` has as rivals the other
+    candidates from the same end to a streak starting within ``window`` frames of
+    ``dst``'s start, and those from an end within ``window`` frames of ``src``'s to the
+    same start. It is kept when every rival is at least ``ratio`` times as long.
+    Rivals of another moment do not count: a firefly's later flashes are candidates
+    for its streak too, and are not a doubt about which flash comes next.
+
+    Parameters
+    ----------
+    src, dst : ndarray of int64, shape (M,)
+        Streak ids of each candidate's earlier end and later start.
+    distance : ndarray of float64, shape (M,)
+        Length of each candidate link (m).
+    end_frame, start_frame : ndarray of int64, shape (M,)
+        Frame of the earlier streak's last point and of the later one's first.
+    ratio : float
+        How many times longer than a link its nearest rival must be.
+    window : float
+        Frames within which two starts (or two ends) count as the same moment.
+
+    Returns
+    -------
+    ndarray of bool, shape (M,)
+    """
+    rival = np.minimum(
+        _nearest_rival(src, start_frame, distance, window),
+        _nearest_rival(dst, end_frame, distance, window),
+    )
+    return np.asarray(rival >= ratio * distance)
+
+
+def _nearest_rival(
+    key: IntArray, frame: IntArray, distance: FloatArray, window: float
+) -> FloatArray:
+    """Per candidate, the shortest other candidate of the same ``key`` whose ``frame`` is
+    within ``window`` (inf where there is none)."""
+    rival = np.full(len(key), np.inf)
+    if len(key) < 2:
+        return rival
+    # Keys spaced beyond the window: the Chebyshev ball only finds pairs of one key.
+    spaced = np.column_stack([key * (window + 1.0), frame]).astype(np.float64)
+    pairs = cKDTree(spaced).query_pairs(window, p=np.inf, output_type="ndarray")
+    np.minimum.at(rival, pairs[:, 0], distance[pairs[:, 1]])
+    np.minimum.at(rival, pairs[:, 1], distance[pairs[:, 0]])
+    return rival
 
 
 def _pairs_within(

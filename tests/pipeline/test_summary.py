@@ -15,7 +15,13 @@ def test_summary_gathers_counts_calibration_tracking_warnings_and_timings() -> N
             ["camera 1: encoded at 0.050 bit per pixel"],
         ),
         Unit("link"): StageResult(
-            {"n_points": 40, "n_streaks": 9, "n_trajectories": 3, "seconds": 0.1}
+            {
+                "n_points": 40,
+                "n_streaks": 9,
+                "n_trajectories": 3,
+                "n_ambiguous_links": 2,
+                "seconds": 0.1,
+            }
         ),
         Unit("triangulate"): StageResult({"n_points": 40, "n_points_sure": 31}),
         Unit("sync"): StageResult(
@@ -71,6 +77,7 @@ def test_summary_gathers_counts_calibration_tracking_warnings_and_timings() -> N
         "points_sure": 31,
         "streaks": 9,
         "trajectories": 3,
+        "ambiguous_links": 2,
     }
     assert (summary["delay_frames"], summary["delay_confidence"]) == (-4, 0.9)
     assert summary["delay_set_aside"] == {"cam1": 12, "cam2": 13}

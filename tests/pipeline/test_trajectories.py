@@ -1,3 +1,5 @@
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from numpy.typing import ArrayLike
@@ -104,9 +106,71 @@ def test_competing_trajectory_candidates_best_first_one_to_one() -> None:
         [[0, 0, 1], [0.25, 0, 1], [0.2, 0, 1], [-0.7, 0, 1]],
         [0, 0, 10, 10],
     )
+    greedy = link(points, FPS, LinkingParams(ambiguity_ratio=0))
+    np.testing.assert_array_equal(greedy.streak_id, [0, 1, 2, 3])
+    np.testing.assert_array_equal(greedy.trajectory_id, [0, 1, 1, 0])
+    # By default E1–S2 is not made: S1 starts as S2 does, 3.5 × nearer to E1 (E1's
+    # firefly may be S1's, and E2's next flash missed). E2–S1 has no such rival.
+    np.testing.assert_array_equal(link(points, FPS).trajectory_id, [0, 1, 1, 2])
+
+
+def swarm_beat(rng: np.random.Generator, n: int, missed: set[tuple[int, int]]) -> Points3D:
+    """``n`` fireflies 0.3 m apart on a line flashing together (3-frame flashes in frames
+    0–2, then 15–17, moving 2 cm between), but for the ``(firefly, first frame)``
+    flashes `missed`. ``index1 // 100`` is each point's firefly."""
+    xyz, frames, rows = [], [], []
+    for i in range(n):
+        for start in (0, 15):
+            if (i, start) not in missed:
+                at = np.array([0.3 * i, 0.0, 3.0]) + (
+                    0.02 * rng.standard_normal(3) if start else 0.0
+                )
+                xyz.append(np.repeat(at[None], 3, axis=0))
+                frames.append(start + np.arange(3))
+                rows.append(100 * i + start + np.arange(3))
+    points = points_of(np.vstack(xyz), np.concatenate(frames))
+    return replace(points, index1=np.concatenate(rows)[points.index1])
+
+
+def mixes_fireflies(points: Points3D, trajectory_id: np.ndarray) -> bool:
+    firefly = points.index1 // 100
+    pairs = np.unique(np.column_stack([trajectory_id, firefly]), axis=0)
+    return len(pairs) > len(np.unique(trajectory_id))
+
+
+def test_a_firefly_whose_next_flash_is_missed_does_not_take_a_neighbours() -> None:
+    # Firefly 0's second flash and firefly 1's first were missed: the nearest free
+    # candidate of firefly 0's flash is firefly 1's second, 0.3 m on.
+    points = swarm_beat(np.random.default_rng(1), 5, missed={(0, 15), (1, 0)})
+    greedy = link(points, FPS, LinkingParams(ambiguity_ratio=0))
+    assert mixes_fireflies(points, greedy.trajectory_id) and greedy.n_ambiguous == 0
     result = link(points, FPS)
-    np.testing.assert_array_equal(result.streak_id, [0, 1, 2, 3])
-    np.testing.assert_array_equal(result.trajectory_id, [0, 1, 1, 0])
+    assert not mixes_fireflies(points, result.trajectory_id) and result.n_ambiguous > 0
+    # The three fireflies seen twice keep their two flashes together.
+    assert result.n_trajectories == 5
+    # A lone firefly's flash 0.6 m on is linked: nothing else flashed then.
+    lone = points_of(
+        np.r_[np.zeros((3, 3)), np.full((3, 3), [0.6, 0, 0])], np.r_[0, 1, 2, 15, 16, 17]
+    )
+    assert link(lone, FPS).n_trajectories == 1
+
+
+def test_a_firefly_s_later_flashes_are_not_rivals_of_its_next() -> None:
+    # One firefly flashing every 0.3 s, drifting 5 cm a beat: every later flash within
+    # the 1 s gap is a candidate, but of another moment; the chain is whole.
+    xyz = np.repeat(0.05 * np.arange(4)[:, None] * [1, 0, 0], 3, axis=0)
+    frame = (9 * np.arange(4)[:, None] + np.arange(3)).ravel()
+    assert link(points_of(xyz, frame), FPS).n_trajectories == 1
+    # Two flashes starting 2 frames apart, 0.1 and 0.25 m from a streak's end, are
+    # rivals for it (within 0.1 s): neither is linked. With a window of 0.05 s they are
+    # not rivals, and the nearer one is.
+    s1 = flash([0.1, 0, 1], [0, 0, 0], 10, 5)
+    s2 = flash([0.25, 0, 1], [0, 0, 0], 12, 5)
+    points = points_of(np.r_[[[0, 0, 1]], s1[0], s2[0]], np.r_[0, s1[1], s2[1]])
+    assert link(points, FPS).n_trajectories == 3
+    narrow = link(points, FPS, LinkingParams(ambiguity_window_s=0.05))
+    assert narrow.n_trajectories == 2
+    assert narrow.trajectory_id[points.index1 == 0] == narrow.trajectory_id[points.index1 == 1]
 
 
 def test_nearest_in_space_wins_and_time_breaks_ties() -> None:
