@@ -7,7 +7,7 @@
 const FIELDS = [
   ["counts.trajectories", "Trajectories"],
   ["counts.streaks", "Streaks"],
-  ["counts.ambiguous_links", "Links between streaks left unmade: another flash of that moment nearly as close"],
+  ["counts.ambiguous_links", "Candidate links between streaks refused: another flash of that moment nearly as close"],
   ["counts.points", "Triangulated flashes"],
   ["counts.points_sure", "Triangulated flashes sure of their range to 2 %"],
   ["clock.start_local", "Recording started (local time)"],
