@@ -109,22 +109,21 @@ def link(
 
     first, last = _streak_ends(streak, points.frame)
     end_src, end_dst, cost = _trajectory_candidates(points, first, last, fps, params)
-    clear = np.ones(len(cost), dtype=bool)
-    if params.ambiguity_ratio > 0:
-        clear = _unambiguous(
-            end_src,
-            end_dst,
-            cost,
-            points.frame[last[end_src]],
-            points.frame[first[end_dst]],
-            params.ambiguity_ratio,
-            params.ambiguity_window_s * fps,
-        )
-        end_src, end_dst, cost = end_src[clear], end_dst[clear], cost[clear]
-    end_src, end_dst = _greedy_one_to_one(end_src, end_dst, cost)
+    clear = _unambiguous(
+        end_src,
+        end_dst,
+        cost,
+        points.frame[last[end_src]],
+        points.frame[first[end_dst]],
+        params.ambiguity_ratio,
+        params.ambiguity_window_s * fps,
+    )
+    end_src, end_dst = _greedy_one_to_one(end_src[clear], end_dst[clear], cost[clear])
     trajectory_of_streak = _chains(len(first), end_src, end_dst)
     trajectory = _first_appearance_labels(trajectory_of_streak[streak], points.frame)
-    return Linking(streak_id=streak, trajectory_id=trajectory, n_ambiguous=int(np.sum(~clear)))
+    return Linking(
+        streak_id=streak, trajectory_id=trajectory, n_ambiguous=int(np.count_nonzero(~clear))
+    )
 
 
 def _trajectory_candidates(
@@ -177,7 +176,8 @@ def _unambiguous(
     end_frame, start_frame : ndarray of int64, shape (M,)
         Frame of the earlier streak's last point and of the later one's first.
     ratio : float
-        How many times longer than a link its nearest rival must be.
+        How many times longer than a link its nearest rival must be (0 keeps every
+        candidate).
     window : float
         Frames within which two starts (or two ends) count as the same moment.
 
